@@ -1,0 +1,157 @@
+"""`lishield-guard synth`: synthetic captures and labelled datasets (imports synth lazily)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from lishield_guard.commands import ExitCode
+from lishield_guard.errors import LishieldError
+
+__all__ = ["register"]
+
+ROTATIONS = (0, 90, 180, 270)
+
+
+def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(int(code))
+
+
+def _parse_sets(values: list[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for v in values:
+        if "=" not in v:
+            raise _fail(f"--set expects KEY=VALUE, got {v!r}")
+        k, val = v.split("=", 1)
+        out[k.strip()] = val.strip()
+    return out
+
+
+def dataset(
+    out: Path = typer.Option(..., "--out", help="Output folder (created if missing)."),
+    n_pos: int = typer.Option(0, "--n-pos", help="Number of barcode captures (label 1)."),
+    n_neg: int = typer.Option(0, "--n-neg", help="Number of negatives (label 0)."),
+    seed: int = typer.Option(0, "--seed", help="Dataset seed; output is byte-identical per seed."),
+    mix: str = typer.Option("default", "--mix",
+                            help="Parameter mix: default, mono, rgb, negatives-only, easy."),
+    sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
+                                   help="Override a mix field, e.g. --set attack_prob=0.5 or "
+                                        "--set jpeg_quality_range=80,95. Repeatable."),
+    size: str = typer.Option("1080p", "--size", help="1080p, 720p, 8mp, 12mp or WxH."),
+    jobs: int = typer.Option(1, "--jobs", "-j", help="Worker processes."),
+    progress: bool = typer.Option(True, "--progress/--no-progress",
+                                  help="Progress bar on stderr."),
+) -> None:
+    """Write a labelled dataset: NNNNNN.jpg images plus manifest.jsonl (one line per image)."""
+    from synth.dataset import MIXES, parse_size, write_dataset
+
+    try:
+        if mix not in MIXES:
+            raise _fail(f"unknown --mix {mix!r}; known: {', '.join(MIXES)}")
+        m = MIXES[mix].with_overrides(_parse_sets(sets)) if sets else MIXES[mix]
+        size_rc = parse_size(size)
+        manifest = write_dataset(out, n_pos=n_pos, n_neg=n_neg, seed=seed, mix=m, size=size_rc,
+                                 jobs=jobs, progress=progress)
+    except LishieldError as exc:
+        raise _fail(str(exc)) from None
+    except OSError as exc:
+        raise _fail(f"cannot write dataset: {exc}", ExitCode.ERROR) from None
+    typer.echo(str(manifest))
+
+
+def capture(
+    preset: str = typer.Option("table1-seq1", "--preset", help="Barcode preset name."),
+    scene: str = typer.Option("skimage:astronaut", "--scene",
+                              help="Image file, skimage:NAME or texture:KIND."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output JPEG path."),
+    row_rate_hz: float = typer.Option(60_000.0, "--row-rate-hz", help="Rows read per second."),
+    exposure_s: float | None = typer.Option(None, "--exposure-s",
+                                            help="Manual exposure time in seconds."),
+    auto: bool = typer.Option(False, "--auto",
+                              help="Auto exposure (default when --exposure-s is not given)."),
+    gain: float | None = typer.Option(None, "--gain",
+                                      help="Manual ISO-like gain (1 = ISO 100); default auto."),
+    ambient_ratio: float = typer.Option(0.0, "--ambient-ratio",
+                                        help="Steady ambient light / LED average, >= 0."),
+    coverage: float = typer.Option(1.0, "--coverage",
+                                   help="Lit fraction of the frame in (0, 1]; < 1 adds a "
+                                        "smooth falloff around the frame centre."),
+    jpeg_quality: int = typer.Option(90, "--jpeg-quality", help="JPEG quality 1-100."),
+    subsampling: str = typer.Option("4:2:0", "--subsampling", help="4:2:0, 4:2:2 or 4:4:4."),
+    downscale: float = typer.Option(1.0, "--downscale", help="Downscale factor >= 1."),
+    rotate: int = typer.Option(0, "--rotate", help="Clockwise rotation: 0, 90, 180 or 270."),
+    rotate_exif: bool = typer.Option(False, "--rotate-exif",
+                                     help="Store the rotation as an EXIF tag, not in pixels."),
+    size: str = typer.Option("1080p", "--size", help="1080p, 720p, 8mp, 12mp or WxH."),
+    switching_hz: float | None = typer.Option(None, "--switching-hz",
+                                              help="Override the preset's switching rate f_B."),
+    no_noise: bool = typer.Option(False, "--no-noise", help="Disable shot and read noise."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (frame start and noise)."),
+    plot: Path | None = typer.Option(None, "--plot",
+                                     help="Also write a PNG: LED waveform, row profile, spectrum."),
+) -> None:
+    """Render one capture of a scene under a barcode LED."""
+    import dataclasses
+
+    import numpy as np
+
+    from firmware.sequence import compile_spec
+    from lishield_guard.camera import CameraModel
+    from lishield_guard.spec import get_preset
+    from synth.camera import auto_exposure_s, encode_jpeg, postprocess, simulate_frame
+    from synth.dataset import LED_CLOCK_HZ, parse_size
+    from synth.light import SequenceLight, coverage_map
+    from synth.scene import load_scene
+
+    if exposure_s is not None and auto:
+        raise _fail("give either --exposure-s or --auto, not both")
+    if rotate not in ROTATIONS:
+        raise _fail(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
+    if not 0.0 < coverage <= 1.0:
+        raise _fail(f"--coverage must be in (0, 1], got {coverage}")
+    if not row_rate_hz > 0:
+        raise _fail(f"--row-rate-hz must be > 0, got {row_rate_hz}")
+    try:
+        spec = get_preset(preset)
+        if switching_hz is not None:
+            spec = dataclasses.replace(spec, switching_hz=switching_hz)
+        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ))
+        n_rows, n_cols = parse_size(size)
+        rng = np.random.default_rng(seed)
+        refl = load_scene(scene, n_rows, n_cols)
+        cmap = None if coverage >= 1.0 else coverage_map(n_rows, n_cols, fraction=coverage)
+        t_e = exposure_s if exposure_s is not None else auto_exposure_s(
+            refl, ambient_ratio=ambient_ratio, coverage=cmap)
+        camera = CameraModel(row_time_s=1.0 / row_rate_hz, n_rows=n_rows, exposure_s=t_e)
+        start_s = float(rng.uniform(0.0, 1.0))
+        frame = simulate_frame(light, refl, camera, rng=rng, start_s=start_s,
+                               ambient_ratio=ambient_ratio, coverage=cmap, gain=gain,
+                               noise=not no_noise)
+        img, orient = postprocess(frame, downscale=downscale, rotation_deg=rotate,
+                                  rotation_mode="exif" if rotate_exif else "bake")
+        data = encode_jpeg(img, quality=jpeg_quality, subsampling=subsampling,
+                           exif_orientation=orient)
+    except LishieldError as exc:
+        raise _fail(str(exc)) from None
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        output.write_bytes(data)
+        if plot is not None:
+            from synth.plots import capture_plot
+
+            capture_plot(plot, light=light, camera=camera, frame=frame, start_s=start_s)
+    except OSError as exc:
+        raise _fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
+    typer.echo(f"{output} preset={spec.name} f_B={spec.f_b_hz:g}Hz exposure_s={t_e:.6g} "
+               f"row_rate_hz={row_rate_hz:g} size={img.shape[1]}x{img.shape[0]}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``synth`` command group (``capture``, ``dataset``) to the CLI."""
+    sub = typer.Typer(name="synth", help="Synthetic captures and labelled datasets.",
+                      no_args_is_help=True, add_completion=False)
+    sub.command("capture")(capture)
+    sub.command("dataset")(dataset)
+    app.add_typer(sub, name="synth")

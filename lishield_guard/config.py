@@ -1,0 +1,310 @@
+"""Detector settings, input limits and policies, read from and written to one TOML file.
+
+The same file is read by the CLI, the HTTP service and written by calibration (DESIGN.md).
+Without ``--config`` the shipped ``lishield_guard/data/default.toml`` applies.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from lishield_guard.errors import ConfigError, SpecError
+from lishield_guard.spec import PRESETS, BarcodeSpec
+
+__all__ = [
+    "AppConfig",
+    "DetectorConfig",
+    "Limits",
+    "Policy",
+    "default_config",
+    "dump_config",
+    "load_config",
+]
+
+DEFAULT_CONFIG_RESOURCE = "default.toml"
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Every tunable number of the detector. Profiles: ``"default"`` and ``"paper"``.
+
+    Paper profile (Algorithm 1, Sec. 5 and 7.3)
+    -------------------------------------------
+    n_block_rows, n_block_cols : int
+        n_br x n_bc block grid (paper: n_b = 4).
+    nominal_row_rate_hz : float
+        f_s used to turn FFT bins into Hz (paper: 30 kHz).
+    band_hz : (float, float)
+        Peaks are picked in this band (paper: 400 Hz - 15 kHz).
+    max_peaks : int
+        M_p strongest peaks per block (paper: 2).
+    ratio_tol : float
+        T_b, absolute tolerance on a ratio, unitless (paper: 0.05).
+    gamma : float
+        gamma of M_b = ceil(gamma * M_R + M_att) (paper: 2 x 5% = 0.1).
+    m_att : int
+        M_att, ratios an exposure attack may remove (paper: 2).
+
+    Default profile
+    ---------------
+    n_col_blocks : int
+        Full-height column blocks whose row profiles must agree (the LED is the same in every
+        column; scene texture is not).
+    min_row_rate_hz, max_row_rate_hz : float
+        Plausible sensor row rates; with ``max_downscale`` they bound the band in cycles/row.
+    max_downscale : float
+        Largest factor by which an upload may have been shrunk (>= 1).
+    peak_false_prob : float
+        Probability that one spectral bin of pure noise passes the significance test.
+    tone_rel_tol : float
+        Relative tolerance between a detected tone and a preset tone at the fitted scale.
+    min_tones : int
+        Tones a monochrome barcode must show (M - 1 survives the exposure attack).
+    min_tones_rgb : int
+        Tones an RGB barcode must show over at least two colour channels.
+    min_occupancy, max_occupancy : float
+        A tone counts when the stripes hold its frequency in this fraction of the rows
+        (unitless): enough to be real, little enough to be switched (a barcode shares the frame
+        between M tones; mains and PWM flicker hold one frequency all frame long).
+    min_purity : float
+        Fraction of significant band samples the matched tones must explain (unitless).
+    orientations : {"both", "rows"}
+        Also analyse columns, so rotation baked into pixels is still detected.
+    """
+
+    profile: Literal["default", "paper"] = "default"
+    # --- paper profile
+    n_block_rows: int = 4
+    n_block_cols: int = 4
+    nominal_row_rate_hz: float = 30_000.0
+    band_hz: tuple[float, float] = (400.0, 15_000.0)
+    max_peaks: int = 2
+    ratio_tol: float = 0.05
+    gamma: float = 0.1
+    m_att: int = 2
+    # --- default profile
+    n_col_blocks: int = 8
+    min_row_rate_hz: float = 30_000.0
+    max_row_rate_hz: float = 120_000.0
+    max_downscale: float = 4.0
+    peak_false_prob: float = 1e-3
+    tone_rel_tol: float = 0.03
+    min_tones: int = 2
+    min_tones_rgb: int = 3
+    min_occupancy: float = 0.04
+    max_occupancy: float = 0.8
+    min_purity: float = 0.5
+    orientations: Literal["both", "rows"] = "both"
+
+    def __post_init__(self) -> None:
+        if self.profile not in ("default", "paper"):
+            raise ConfigError(f"profile must be 'default' or 'paper', got {self.profile!r}")
+        object.__setattr__(self, "band_hz", tuple(float(b) for b in self.band_hz))
+        for name in ("n_block_rows", "n_block_cols", "max_peaks", "n_col_blocks", "min_tones",
+                     "min_tones_rgb"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")
+        if self.m_att < 0:
+            raise ConfigError(f"need m_att >= 0, got m_att={self.m_att!r}")
+        lo, hi = self.band_hz
+        if not 0 < lo < hi:
+            raise ConfigError(f"need 0 < band_hz[0] < band_hz[1], got band_hz={self.band_hz!r}")
+        if not 0 < self.min_row_rate_hz < self.max_row_rate_hz:
+            raise ConfigError(f"need 0 < min_row_rate_hz={self.min_row_rate_hz!r} < "
+                              f"max_row_rate_hz={self.max_row_rate_hz!r}")
+        if self.max_downscale < 1:
+            raise ConfigError(f"need max_downscale >= 1, got {self.max_downscale!r}")
+        if not 0 < self.peak_false_prob < 1:
+            raise ConfigError(f"need 0 < peak_false_prob < 1, got {self.peak_false_prob!r}")
+        if not 0 <= self.min_occupancy < self.max_occupancy <= 1:
+            raise ConfigError(f"need 0 <= min_occupancy={self.min_occupancy!r} < "
+                              f"max_occupancy={self.max_occupancy!r} <= 1")
+        if not 0 <= self.min_purity <= 1:
+            raise ConfigError(f"need 0 <= min_purity <= 1, got {self.min_purity!r}")
+        for name in ("ratio_tol", "tone_rel_tol", "gamma", "nominal_row_rate_hz"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"need {name} > 0, got {name}={v!r}")
+        if self.orientations not in ("both", "rows"):
+            raise ConfigError(f"orientations must be 'both' or 'rows', got {self.orientations!r}")
+
+    def replace(self, **changes: Any) -> DetectorConfig:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Input limits enforced before and during decoding.
+
+    max_pixels : int
+        Largest width x height accepted (decompression-bomb guard).
+    max_bytes : int
+        Largest encoded input accepted, in bytes.
+    """
+
+    max_pixels: int = 100_000_000
+    max_bytes: int = 64 * 1024 * 1024
+
+    def __post_init__(self) -> None:
+        for name in ("max_pixels", "max_bytes"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")
+
+
+@dataclass(frozen=True)
+class Policy:
+    """A policy id (e.g. ``no-distribution``) and the barcodes that signal it."""
+
+    id: str
+    specs: tuple[BarcodeSpec, ...]
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.id or not isinstance(self.id, str):
+            raise ConfigError(f"policy id must be a non-empty string, got {self.id!r}")
+        if not self.specs:
+            raise ConfigError(f"policy {self.id!r} needs at least one barcode spec")
+
+    def ratio_values(self) -> np.ndarray:
+        """S_b: the union of every spec's ratio values, ascending, unitless."""
+        return np.unique(np.concatenate([s.ratio_values() for s in self.specs]))
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (used by the service's /v1/policies)."""
+        return {"id": self.id, "description": self.description,
+                "specs": [s.to_dict() for s in self.specs],
+                "ratios": [round(float(r), 6) for r in self.ratio_values()]}
+
+
+@dataclass(frozen=True)
+class AppConfig:
+    """Everything one TOML config file holds."""
+
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    limits: Limits = field(default_factory=Limits)
+    policies: tuple[Policy, ...] = ()
+    source: str = field(default="<built-in>", compare=False)
+    header: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        ids = [p.id for p in self.policies]
+        if len(set(ids)) != len(ids):
+            raise ConfigError(f"duplicate policy ids in {ids!r}")
+
+
+def _spec_from_entry(entry: Any, where: str) -> BarcodeSpec:
+    if isinstance(entry, str):
+        try:
+            return PRESETS[entry]
+        except KeyError:
+            raise ConfigError(f"{where}: unknown preset {entry!r}; known: "
+                              f"{', '.join(PRESETS)}") from None
+    if isinstance(entry, dict):
+        try:
+            return BarcodeSpec.from_dict(entry)
+        except SpecError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+    raise ConfigError(f"{where}: a spec is a preset name or a table, got {entry!r}")
+
+
+def _build(table: dict, *, source: str, header: str = "") -> AppConfig:
+    known = {"detector", "limits", "policies", "calibration"}
+    unknown = set(table) - known
+    if unknown:
+        raise ConfigError(f"{source}: unknown top-level keys {sorted(unknown)!r}")
+    det_fields = {f.name for f in dataclasses.fields(DetectorConfig)}
+    det = table.get("detector", {})
+    bad = set(det) - det_fields
+    if bad:
+        raise ConfigError(f"{source}: unknown [detector] keys {sorted(bad)!r}")
+    lim = table.get("limits", {})
+    bad = set(lim) - {f.name for f in dataclasses.fields(Limits)}
+    if bad:
+        raise ConfigError(f"{source}: unknown [limits] keys {sorted(bad)!r}")
+    policies = []
+    for i, p in enumerate(table.get("policies", [])):
+        where = f"{source}: policies[{i}]"
+        if not isinstance(p, dict) or "id" not in p:
+            raise ConfigError(f"{where}: each policy needs an 'id'")
+        specs = [_spec_from_entry(e, where) for e in p.get("presets", [])]
+        specs += [_spec_from_entry(e, where) for e in p.get("specs", [])]
+        policies.append(Policy(id=str(p["id"]), specs=tuple(specs),
+                               description=str(p.get("description", ""))))
+    try:
+        return AppConfig(detector=DetectorConfig(**det), limits=Limits(**lim),
+                         policies=tuple(policies), source=source, header=header)
+    except TypeError as exc:  # wrong value types reach dataclass construction
+        raise ConfigError(f"{source}: {exc}") from exc
+
+
+def load_config(path: str | Path | None = None) -> AppConfig:
+    """Read a TOML config file; ``None`` reads the shipped default.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, is not valid TOML, or holds unknown keys or bad values.
+    """
+    if path is None:
+        text = resources.files("lishield_guard.data").joinpath(DEFAULT_CONFIG_RESOURCE).read_text()
+        source = "default.toml"
+    else:
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot read config file {str(p)!r}: {exc.strerror}") from exc
+        source = str(p)
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    header = "\n".join(ln for ln in text.splitlines() if ln.startswith("#"))
+    return _build(table, source=source, header=header)
+
+
+_cached_default: AppConfig | None = None
+
+
+def default_config() -> AppConfig:
+    """The shipped default config, read once."""
+    global _cached_default
+    if _cached_default is None:
+        _cached_default = load_config(None)
+    return _cached_default
+
+
+def dump_config(cfg: AppConfig, *, header: str = "") -> str:
+    """Serialise a config to TOML text; ``header`` lines are written as leading comments."""
+    import tomli_w
+
+    det = dataclasses.asdict(cfg.detector)
+    det["band_hz"] = list(det["band_hz"])
+    table = {
+        "detector": det,
+        "limits": dataclasses.asdict(cfg.limits),
+        "policies": [],
+    }
+    for p in cfg.policies:
+        entry: dict[str, Any] = {"id": p.id, "description": p.description}
+        presets = [s.name for s in p.specs if PRESETS.get(s.name) == s]
+        custom = [s.to_dict() for s in p.specs if PRESETS.get(s.name) != s]
+        if presets:
+            entry["presets"] = presets
+        if custom:
+            entry["specs"] = custom
+        table["policies"].append(entry)
+    lines = [f"# {ln}" if ln and not ln.startswith("#") else ln for ln in header.splitlines()]
+    body = tomli_w.dumps(table)
+    return ("\n".join(lines) + "\n\n" if lines else "") + body

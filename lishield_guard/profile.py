@@ -1,0 +1,77 @@
+"""Reduce pixels to row profiles per column block: the detector's only O(pixels) step."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["block_row_profiles", "detrend_profiles"]
+
+
+def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0) -> np.ndarray:
+    """Mean brightness of every row within each of ``n_col_blocks`` column blocks.
+
+    Parameters
+    ----------
+    plane : ndarray of shape (n_rows, n_cols)
+        uint8, uint16 or float32 pixels.
+    n_col_blocks : int
+        Number of equal-width column blocks (clipped to n_cols).
+    axis : {0, 1}
+        0 profiles sensor rows (stripes run along rows); 1 profiles columns instead, as if the
+        image were transposed (rotation baked into pixels).
+
+    Returns
+    -------
+    profiles : ndarray of shape (n_blocks, n_rows), float32
+        ``profiles[b, i]`` is the mean of row i over block b.
+
+    Notes
+    -----
+    ``cv2.reduce`` with a float32 accumulator over each column block: no full-size copy and no
+    rounding of the means (stripes can be far below one grey level).
+    """
+    n_rows, n_cols = plane.shape if axis == 0 else plane.shape[::-1]
+    src = plane if plane.dtype in (np.uint8, np.uint16, np.float32) else plane.astype(np.float32)
+    n_blocks = max(1, min(int(n_col_blocks), n_cols))
+    out = np.empty((n_blocks, n_rows), dtype=np.float32)
+    for b, (c0, c1) in enumerate(_edges(n_cols, n_blocks)):
+        if axis == 0:
+            out[b] = cv2.reduce(src[:, c0:c1], 1, cv2.REDUCE_AVG, dtype=cv2.CV_32F)[:, 0]
+        else:  # blocks of sensor columns are blocks of stored rows
+            out[b] = cv2.reduce(src[c0:c1, :], 0, cv2.REDUCE_AVG, dtype=cv2.CV_32F)[0]
+    return out
+
+
+def _edges(n: int, k: int) -> list[tuple[int, int]]:
+    cuts = np.linspace(0, n, k + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b > a]
+
+
+def detrend_profiles(profiles: np.ndarray, *, sigma_rows: float) -> tuple[np.ndarray, np.ndarray]:
+    """Relative contrast of each profile against its smooth trend.
+
+    Parameters
+    ----------
+    profiles : ndarray of shape (n_blocks, n_rows)
+        Row means, any positive scale.
+    sigma_rows : float
+        Standard deviation of the Gaussian trend filter, in rows.
+
+    Returns
+    -------
+    contrast : ndarray of shape (n_blocks, n_rows), float64
+        profile / trend - 1 (unitless); 0 where the trend is not positive.
+    trend : ndarray, same shape
+        The smoothed profiles.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    p = profiles.astype(np.float64)
+    trend = gaussian_filter1d(p, sigma=max(float(sigma_rows), 1.0), axis=-1, mode="reflect")
+    floor = max(float(np.abs(trend).max()) * 1e-6, 1e-12)
+    good = trend > floor
+    contrast = np.zeros_like(p)
+    np.divide(p, trend, out=contrast, where=good)
+    contrast -= good
+    return contrast, trend

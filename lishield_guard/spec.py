@@ -1,0 +1,366 @@
+"""Barcode spec: which frequencies a LiShield LED plays, how it switches, and the ratios it encodes.
+
+A barcode (paper Sec. 3.3.1 and 5) cycles each colour channel through M on-off-keyed tones
+f_1 < f_2 < ... < f_M, holding each for one slot of 1/f_B seconds (f_B is the switching rate).
+The whole pattern repeats every M/f_B seconds. Ratios between tones do not depend on the
+camera's row rate, so the set of ratios (larger/smaller for every pair) is what a detector
+looks for.
+
+Slot semantics used project-wide (firmware, synth and detector agree on it): each slot restarts
+its tone at the start of an ON half-period, so the pattern is exactly periodic with period M/f_B.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from lishield_guard.errors import SpecError
+
+__all__ = [
+    "BarcodeSpec",
+    "PRESETS",
+    "Ratio",
+    "SpecReport",
+    "Violation",
+    "check_spec",
+    "get_preset",
+    "require_valid",
+]
+
+CHANNEL_NAMES = ("W", "R", "G", "B")
+DEFAULT_FLICKER_THRESHOLD_HZ = 80.0  # paper Sec. 3.3.1: f_th ~ 80 Hz
+DEFAULT_MAX_FREQ_HZ = 15_000.0  # paper Sec. 5: Nyquist at the slowest (30 kHz) row rate
+DEFAULT_RATIO_TOL = 0.05  # paper Sec. 7.3: T_b = 0.05 (absolute, unitless)
+DEFAULT_MIN_READOUT_S = 0.010  # DESIGN.md: phones read a frame in roughly 10-35 ms
+
+
+@dataclass(frozen=True)
+class Ratio:
+    """One value of a barcode's ratio set and the tone pairs that produce it.
+
+    Attributes
+    ----------
+    value : float
+        larger / smaller, unitless, >= 1.
+    pairs : tuple of ((channel, hz), (channel, hz))
+        Each pair is (numerator tone, denominator tone).
+    """
+
+    value: float
+    pairs: tuple[tuple[tuple[str, float], tuple[str, float]], ...]
+
+
+@dataclass(frozen=True)
+class BarcodeSpec:
+    """A LiShield barcode: per-channel tone lists plus switching, duty and randomization.
+
+    Parameters
+    ----------
+    name : str
+        Identifier, e.g. ``"table1-seq1"``.
+    channels : tuple of (channel, tuple of float)
+        ``("W", (400.0, 600.0, 800.0))`` for monochrome, or one entry per ``R``/``G``/``B``.
+        Frequencies in Hz, listed in any order; stored ascending. Every channel holds the same
+        number M of tones.
+    switching_hz : float or None
+        Slot rate f_B in Hz. None means f_B = f_1, the lowest tone of all channels (paper default).
+    duty : float
+        ON fraction of each tone's period, in (0, 1). Default 0.5.
+    intensity_levels : int
+        K >= 1 ON levels for intensity randomization (paper Sec. 3.3.2); 1 disables it.
+    order : {"cyclic", "random"}
+        Slot order: ascending tones, or a permutation drawn from ``order_seed``.
+    order_seed : int or None
+        Seed of the random slot order; required when ``order="random"``.
+    """
+
+    name: str
+    channels: tuple[tuple[str, tuple[float, ...]], ...]
+    switching_hz: float | None = None
+    duty: float = 0.5
+    intensity_levels: int = 1
+    order: Literal["cyclic", "random"] = "cyclic"
+    order_seed: int | None = None
+    description: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        chans = tuple((str(c), tuple(sorted(float(f) for f in fs))) for c, fs in self.channels)
+        object.__setattr__(self, "channels", chans)
+        if not chans:
+            raise SpecError("a spec needs at least one channel", rule="structure")
+        names = [c for c, _ in chans]
+        if len(set(names)) != len(names):
+            raise SpecError(f"duplicate channel in {names!r}", rule="structure")
+        bad = [c for c in names if c not in CHANNEL_NAMES]
+        if bad:
+            raise SpecError(f"unknown channel {bad!r}; use W, R, G or B", rule="structure")
+        if "W" in names and len(names) > 1:
+            raise SpecError("channel W (monochrome) cannot be mixed with R/G/B", rule="structure")
+        counts = {len(fs) for _, fs in chans}
+        if len(counts) != 1 or min(counts) < 1:
+            raise SpecError(f"every channel needs the same number (>= 1) of tones, got "
+                            f"{ {c: len(fs) for c, fs in chans} }", rule="structure")
+        for c, fs in chans:
+            if not all(math.isfinite(f) and f > 0 for f in fs):
+                raise SpecError(f"channel {c} frequencies must be finite and > 0 Hz, got {fs!r}",
+                                rule="structure")
+        if self.switching_hz is not None and not (
+            math.isfinite(self.switching_hz) and self.switching_hz > 0
+        ):
+            raise SpecError(f"need switching_hz > 0, got {self.switching_hz!r}", rule="structure")
+        if not 0.0 < self.duty < 1.0:
+            raise SpecError(f"need 0 < duty < 1, got duty={self.duty!r}", rule="structure")
+        if int(self.intensity_levels) != self.intensity_levels or self.intensity_levels < 1:
+            raise SpecError(f"need intensity_levels >= 1, got {self.intensity_levels!r}",
+                            rule="structure")
+        if self.order not in ("cyclic", "random"):
+            raise SpecError(f"order must be 'cyclic' or 'random', got {self.order!r}",
+                            rule="structure")
+        if self.order == "random" and self.order_seed is None:
+            raise SpecError("order='random' needs order_seed", rule="structure")
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def mono(cls, name: str, freqs_hz, **kw) -> BarcodeSpec:
+        """Monochrome spec (channel ``W``) with the given tones in Hz."""
+        return cls(name=name, channels=(("W", tuple(freqs_hz)),), **kw)
+
+    @classmethod
+    def rgb(cls, name: str, red_hz, green_hz, blue_hz, **kw) -> BarcodeSpec:
+        """RGB spec with one tone list per colour channel, in Hz."""
+        return cls(name=name, channels=(("R", tuple(red_hz)), ("G", tuple(green_hz)),
+                                        ("B", tuple(blue_hz))), **kw)
+
+    # ------------------------------------------------------------------ derived values
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """Channel names in spec order."""
+        return tuple(c for c, _ in self.channels)
+
+    @property
+    def is_rgb(self) -> bool:
+        """True when the spec drives separate colour channels."""
+        return self.channel_names != ("W",)
+
+    @property
+    def n_tones(self) -> int:
+        """M, the number of tones (slots) per channel."""
+        return len(self.channels[0][1])
+
+    @property
+    def all_freqs_hz(self) -> tuple[float, ...]:
+        """Every tone of every channel, ascending, in Hz."""
+        return tuple(sorted(f for _, fs in self.channels for f in fs))
+
+    @property
+    def f1_hz(self) -> float:
+        """The lowest tone over all channels, in Hz."""
+        return self.all_freqs_hz[0]
+
+    @property
+    def f_b_hz(self) -> float:
+        """Switching rate f_B in Hz (slots per second)."""
+        return float(self.switching_hz) if self.switching_hz is not None else self.f1_hz
+
+    @property
+    def slot_s(self) -> float:
+        """Duration of one slot, 1/f_B, in seconds."""
+        return 1.0 / self.f_b_hz
+
+    @property
+    def pattern_period_s(self) -> float:
+        """Duration of the whole pattern, M/f_B, in seconds."""
+        return self.n_tones / self.f_b_hz
+
+    @property
+    def lowest_side_lobe_hz(self) -> float:
+        """Lowest non-DC side lobe f_B/M of the switching modulation, in Hz (Sec. 3.3.1)."""
+        return self.f_b_hz / self.n_tones
+
+    def slot_order(self) -> tuple[int, ...]:
+        """Tone index (into each channel's ascending list) played in each slot of one pattern."""
+        m = self.n_tones
+        if self.order == "cyclic":
+            return tuple(range(m))
+        rng = np.random.default_rng(self.order_seed)
+        return tuple(int(i) for i in rng.permutation(m))
+
+    def ratios(self) -> tuple[Ratio, ...]:
+        """The ratio set S_b: larger/smaller for every tone pair, within and across channels.
+
+        Equal values (to 1e-9 relative) are merged into one `Ratio` listing every pair.
+        """
+        tones = [(c, f) for c, fs in self.channels for f in fs]
+        raw: list[tuple[float, tuple[tuple[str, float], tuple[str, float]]]] = []
+        for a, b in itertools.combinations(tones, 2):
+            hi, lo = (a, b) if a[1] >= b[1] else (b, a)
+            if lo[1] == hi[1]:
+                continue
+            raw.append((hi[1] / lo[1], (hi, lo)))
+        raw.sort(key=lambda r: r[0])
+        merged: list[Ratio] = []
+        for value, pair in raw:
+            if merged and abs(merged[-1].value - value) <= 1e-9 * value:
+                merged[-1] = Ratio(merged[-1].value, merged[-1].pairs + (pair,))
+            else:
+                merged.append(Ratio(value, (pair,)))
+        return tuple(merged)
+
+    def ratio_values(self) -> np.ndarray:
+        """Distinct ratio values of `ratios`, ascending, unitless."""
+        return np.array([r.value for r in self.ratios()], dtype=float)
+
+    def to_dict(self) -> dict:
+        """JSON/TOML-ready description."""
+        d: dict = {"name": self.name, "channels": {c: list(fs) for c, fs in self.channels},
+                   "duty": self.duty, "intensity_levels": self.intensity_levels,
+                   "order": self.order}
+        if self.switching_hz is not None:
+            d["switching_hz"] = self.switching_hz
+        if self.order_seed is not None:
+            d["order_seed"] = self.order_seed
+        if self.description:
+            d["description"] = self.description
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> BarcodeSpec:
+        """Inverse of `to_dict`; raises SpecError naming a missing or unknown key."""
+        known = {"name", "channels", "switching_hz", "duty", "intensity_levels", "order",
+                 "order_seed", "description"}
+        unknown = set(d) - known
+        if unknown:
+            raise SpecError(f"unknown spec keys {sorted(unknown)!r}", rule="structure")
+        if "name" not in d or "channels" not in d:
+            raise SpecError("a spec needs 'name' and 'channels'", rule="structure")
+        chans = d["channels"]
+        if not isinstance(chans, dict):
+            raise SpecError("'channels' must map channel name to a list of Hz", rule="structure")
+        kw = {k: d[k] for k in known - {"name", "channels"} if k in d}
+        return cls(name=str(d["name"]), channels=tuple((c, tuple(fs)) for c, fs in chans.items()),
+                   **kw)
+
+
+# ---------------------------------------------------------------------- validation
+@dataclass(frozen=True)
+class Violation:
+    """One validation rule a spec breaks (``severity`` "error") or should note ("warning")."""
+
+    rule: str
+    message: str
+    severity: Literal["error", "warning"] = "error"
+
+
+@dataclass(frozen=True)
+class SpecReport:
+    """Result of `check_spec`: every rule broken, plus warnings."""
+
+    spec: BarcodeSpec
+    violations: tuple[Violation, ...]
+
+    @property
+    def ok(self) -> bool:
+        """True when no rule of severity "error" is broken."""
+        return not any(v.severity == "error" for v in self.violations)
+
+
+RULES = ("switching", "flicker", "max_freq", "distinct_freqs", "ratios_distinct", "readout")
+
+
+def check_spec(
+    spec: BarcodeSpec,
+    *,
+    ratio_tol: float = DEFAULT_RATIO_TOL,
+    flicker_threshold_hz: float = DEFAULT_FLICKER_THRESHOLD_HZ,
+    max_freq_hz: float = DEFAULT_MAX_FREQ_HZ,
+    min_readout_s: float = DEFAULT_MIN_READOUT_S,
+) -> SpecReport:
+    """Check a spec against the paper's rules and report every one it breaks.
+
+    Rules (names used in `Violation.rule` and `SpecError.rule`):
+
+    - ``switching``: f_B <= f_1 (a slot must hold at least one period of its lowest tone).
+    - ``flicker``: lowest side lobe f_B / M > ``flicker_threshold_hz`` (Hz).
+    - ``max_freq``: highest tone <= ``max_freq_hz`` (Hz).
+    - ``distinct_freqs``: no tone appears twice in one channel.
+    - ``ratios_distinct``: two different ratio values differ by more than 2 * ``ratio_tol``
+      (absolute, unitless; the paper's T_b window) so a measured ratio names one of them.
+    - ``readout`` (warning): the pattern period M / f_B fits in ``min_readout_s`` seconds, so even
+      a fast-readout frame holds every tone.
+    """
+    out: list[Violation] = []
+    if spec.f_b_hz > spec.f1_hz * (1 + 1e-12):
+        out.append(Violation("switching", f"need f_B <= f_1, got f_B={spec.f_b_hz:g} Hz > "
+                                          f"f_1={spec.f1_hz:g} Hz"))
+    if spec.lowest_side_lobe_hz <= flicker_threshold_hz:
+        out.append(Violation("flicker", f"lowest side lobe f_B/M={spec.lowest_side_lobe_hz:.1f} "
+                                        f"Hz is not above flicker_threshold_hz="
+                                        f"{flicker_threshold_hz:g} Hz"))
+    top = spec.all_freqs_hz[-1]
+    if top > max_freq_hz:
+        out.append(Violation("max_freq", f"highest tone {top:g} Hz exceeds max_freq_hz="
+                                         f"{max_freq_hz:g} Hz"))
+    for c, fs in spec.channels:
+        if len(set(fs)) != len(fs):
+            out.append(Violation("distinct_freqs", f"channel {c} repeats a tone: {fs!r}"))
+    values = spec.ratio_values()
+    if values.size > 1:
+        gaps = np.diff(values)
+        i = int(np.argmin(gaps))
+        if gaps[i] <= 2 * ratio_tol:
+            out.append(Violation("ratios_distinct",
+                                 f"ratios {values[i]:.4f} and {values[i + 1]:.4f} differ by "
+                                 f"{gaps[i]:.4f} <= 2*ratio_tol={2 * ratio_tol:g}; a measured "
+                                 f"ratio cannot be told apart"))
+    if spec.pattern_period_s > min_readout_s:
+        out.append(Violation("readout", f"pattern period M/f_B={spec.pattern_period_s * 1e3:.2f} "
+                                        f"ms exceeds a fast frame readout of "
+                                        f"{min_readout_s * 1e3:g} ms; such a photo holds only "
+                                        f"part of the cycle and may miss a tone", "warning"))
+    return SpecReport(spec, tuple(out))
+
+
+def require_valid(spec: BarcodeSpec, *, rules=("switching", "flicker", "max_freq",
+                                               "distinct_freqs"), **kw) -> BarcodeSpec:
+    """Raise SpecError for the first broken rule among ``rules``; return the spec otherwise."""
+    for v in check_spec(spec, **kw).violations:
+        if v.rule in rules and v.severity == "error":
+            raise SpecError(v.message, rule=v.rule)
+    return spec
+
+
+# ---------------------------------------------------------------------- presets
+def _table3(m: int) -> BarcodeSpec:
+    f_b = {  # Table 3: f_B = f_1 = 200, 300, ..., 600 Hz for M = 2..6
+        2: 200.0, 3: 300.0, 4: 400.0, 5: 500.0, 6: 600.0}[m]
+    return BarcodeSpec.mono(f"table3-m{m}", [f_b + 50.0 * n for n in range(m)],
+                            description=f"Paper Table 3, frequency randomization with M={m}: "
+                                        f"f_B = f_1 = {f_b:g} Hz, delta f = 50 Hz.")
+
+
+PRESETS: dict[str, BarcodeSpec] = {
+    "table1-seq1": BarcodeSpec.mono("table1-seq1", [400, 600, 800],
+                                    description="Paper Table 1, monochrome sequence 1."),
+    "table1-seq2": BarcodeSpec.mono("table1-seq2", [1000, 1200, 1400],
+                                    description="Paper Table 1, monochrome sequence 2."),
+    "table1-seq3": BarcodeSpec.mono("table1-seq3", [1600, 1800, 2000],
+                                    description="Paper Table 1, monochrome sequence 3."),
+    "table2-rgb": BarcodeSpec.rgb("table2-rgb", [400, 600, 800], [1000, 1200, 1400],
+                                  [1600, 1800, 2000],
+                                  description="Paper Table 2, RGB barcode (f_B = 400 Hz)."),
+    **{f"table3-m{m}": _table3(m) for m in range(2, 7)},
+}
+
+
+def get_preset(name: str) -> BarcodeSpec:
+    """Look up a preset by name; raises SpecError listing the known names."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise SpecError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}",
+                        rule="preset") from None
