@@ -3,8 +3,8 @@
 A tone f_n (Hz) appears at sigma * f_n cycles per row, with sigma = row time x downscale, the
 same for every tone and channel. On a log-frequency axis the scale is a shift, so matching is a
 1-D search over ln(sigma) inside its physical range: for each shift, the *occupancy* of a tone
-is the fraction of rows whose significant instantaneous frequency lies within ``tone_rel_tol``
-of sigma * f_n.
+is the fraction of frames (short windows down the rows) whose significant peak lies within
+``tone_rel_tol`` of sigma * f_n.
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ from lishield_guard.spectrum import PlaneAnalysis
 __all__ = ["SpecMatch", "match_spec", "scale_range_cpr_per_hz"]
 
 LOG_BIN = 0.002  # histogram bin width in ln(cycles/row)
+MIN_FRAMES = 2  # a tone seen in one frame only is not evidence
+RESOLVE_CYCLES = 1.0  # tone spacing x window length needed to tell two tones apart
 
 
 @dataclass(frozen=True)
@@ -84,16 +86,18 @@ def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:
 
 
 def _histograms(analysis: PlaneAnalysis, grid_lo: float, n_bins: int) -> np.ndarray:
-    """Cumulative log-frequency histograms of significant IF, shape (n_bands, n_bins + 1)."""
-    out = np.zeros((len(analysis.bands), n_bins + 1))
-    for k, band in enumerate(analysis.bands):
-        f = band.if_cpr[band.significant]
-        if f.size == 0:
-            continue
-        idx = np.floor((np.log(f) - grid_lo) / LOG_BIN).astype(int)
-        idx = idx[(idx >= 0) & (idx < n_bins)]
-        out[k, 1:] = np.cumsum(np.bincount(idx, minlength=n_bins))
-    return out / max(analysis.n_rows - 1, 1)
+    """Cumulative log-frequency histograms of significant peaks, shape (n_tracks, n_bins + 1).
+
+    Counts are divided by each track's frame count, so values are fractions of the frame.
+    """
+    out = np.zeros((len(analysis.tracks), n_bins + 1))
+    for k, track in enumerate(analysis.tracks):
+        f = track.freq_cpr[track.significant]
+        if f.size:
+            idx = np.floor((np.log(f) - grid_lo) / LOG_BIN).astype(int)
+            idx = idx[(idx >= 0) & (idx < n_bins)]
+            out[k, 1:] = np.cumsum(np.bincount(idx, minlength=n_bins)) / track.freq_cpr.size
+    return out
 
 
 def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
@@ -122,31 +126,41 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
     per_channel: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for c, logs in tones.items():
         analysis = planes[c]
-        if not analysis.bands:
+        if not analysis.tracks:
             continue
         cum = _histograms(analysis, grid_lo, n_bins)
-        los = np.array([b.lo_cpr for b in analysis.bands])
-        his = np.array([b.hi_cpr for b in analysis.bands])
-        centre = np.log(np.sqrt(los * his))
-        # band per shift: the one whose centre is nearest the tones' centre, if it holds them
-        mid = shifts + 0.5 * (logs.min() + logs.max())
-        band = np.abs(mid[:, None] - centre[None, :]).argmin(axis=1)
-        fits = (np.log(los[band]) <= shifts + logs.min() - tol) & (
-            np.log(his[band]) >= shifts + logs.max() + tol)
-        occ = np.zeros((shifts.size, logs.size))
+        los = np.log([t.lo_cpr for t in analysis.tracks])
+        his = np.log([t.hi_cpr for t in analysis.tracks])
+        sigf = np.array([t.significant_fraction for t in analysis.tracks])
+        # occupancy of every tone, for every track and shift: (n_tracks, n_shifts, n_tones)
+        occ = np.zeros((len(analysis.tracks), shifts.size, logs.size))
         for n, lt in enumerate(logs):
             a = np.clip(np.floor((shifts + lt - tol - grid_lo) / LOG_BIN).astype(int), 0, n_bins)
             b = np.clip(np.floor((shifts + lt + tol - grid_lo) / LOG_BIN).astype(int) + 1, 0,
                         n_bins)
-            occ[:, n] = cum[band, b] - cum[band, a]
+            occ[:, :, n] = cum[:, b] - cum[:, a]
+        fits = (los[:, None] <= shifts[None, :] + logs.min() - tol) & (
+            his[:, None] >= shifts[None, :] + logs.max() + tol)
+        # a window resolves two tones only when they differ by >= RESOLVE_CYCLES per window;
+        # shorter windows would scatter one steady tone over several neighbouring tones
+        if logs.size > 1:
+            spacing_cpr = np.exp(shifts) * float(np.diff(np.exp(logs)).min())
+            windows = np.array([t.window_rows for t in analysis.tracks], dtype=float)
+            fits &= windows[:, None] * spacing_cpr[None, :] >= RESOLVE_CYCLES
         occ[~fits] = 0.0
-        sig = np.array([bd.significant_fraction for bd in analysis.bands])[band] * fits
-        hit = (occ >= config.min_occupancy) & (occ <= config.max_occupancy)
-        total_occ += (occ * hit).sum(axis=1)
+        n_frames = np.array([t.freq_cpr.size for t in analysis.tracks], dtype=float)
+        floor = np.maximum(config.min_occupancy, MIN_FRAMES / n_frames)[:, None, None]
+        hit_all = (occ >= floor - 1e-12) & (occ <= config.max_occupancy)
+        # per shift, the window length that explains the most: most tones, then occupancy
+        track_rank = hit_all.sum(axis=2) * 10.0 + (occ * hit_all).sum(axis=2)
+        track = track_rank.argmax(axis=0)
+        cols = np.arange(shifts.size)
+        occ_b, hit = occ[track, cols], hit_all[track, cols]
+        total_occ += (occ_b * hit).sum(axis=1)
         n_hit += hit.sum(axis=1)
         ch_hit += hit.any(axis=1)
-        sig_used += sig
-        per_channel[c] = (occ, hit, band)
+        sig_used += sigf[track] * fits[track, cols]
+        per_channel[c] = (occ_b, hit, track)
 
     purity = np.divide(total_occ, sig_used, out=np.zeros_like(total_occ), where=sig_used > 0)
     # rank shifts: most tones, then most matched occupancy
@@ -182,15 +196,15 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
                      reason)
 
 
-def _labels(analysis: PlaneAnalysis, band: int, sigma: float, freqs, hit: np.ndarray,
+def _labels(analysis: PlaneAnalysis, track_index: int, sigma: float, freqs, hit: np.ndarray,
             rel_tol: float) -> np.ndarray:
-    """Per-row index of the matched tone the IF sits on (-1 for none)."""
-    track = analysis.bands[band]
-    lab = np.full(track.if_cpr.size, -1)
+    """Per-frame index of the matched tone the stripes sit on (-1 for none)."""
+    track = analysis.tracks[track_index]
+    lab = np.full(track.freq_cpr.size, -1)
     for n, (f, h) in enumerate(zip(freqs, hit, strict=True)):
         if not h:
             continue
-        on = track.significant & (np.abs(track.if_cpr / (sigma * f) - 1.0) <= rel_tol)
+        on = track.significant & (np.abs(track.freq_cpr / (sigma * f) - 1.0) <= rel_tol)
         lab[on] = n
     return lab
 

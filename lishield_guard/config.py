@@ -96,7 +96,7 @@ class DetectorConfig:
     max_row_rate_hz: float = 120_000.0
     max_downscale: float = 4.0
     peak_false_prob: float = 1e-3
-    tone_rel_tol: float = 0.03
+    tone_rel_tol: float = 0.04
     min_tones: int = 2
     min_tones_rgb: int = 3
     min_occupancy: float = 0.04
@@ -219,6 +219,15 @@ def _spec_from_entry(entry: Any, where: str) -> BarcodeSpec:
 
 
 def _build(table: dict, *, source: str, header: str = "") -> AppConfig:
+    try:
+        return _build_checked(table, source=source, header=header)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError, AttributeError) as exc:  # wrong value types in the file
+        raise ConfigError(f"{source}: invalid value: {exc}") from exc
+
+
+def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
     known = {"detector", "limits", "policies", "calibration"}
     unknown = set(table) - known
     if unknown:

@@ -28,6 +28,9 @@ from lishield_guard.errors import (
 __all__ = ["Decoded", "decode", "validate_image"]
 
 ImageFile.LOAD_TRUNCATED_IMAGES = False
+# Pillow's own bomb check fires inside Image.open and surfaces as "unidentified image"; the
+# configurable cap (Limits.max_pixels) is enforced on the header before any pixel is decoded.
+Image.MAX_IMAGE_PIXELS = None
 _HEIF_READY = False
 EXIF_ORIENTATION_TAG = 0x0112
 _JPEG_MAGIC = b"\xff\xd8\xff"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import time
 from contextlib import contextmanager
 
@@ -129,7 +128,7 @@ def _analyse(plane: np.ndarray, axis: int, config: AppConfig) -> PlaneAnalysis:
     n_rows = profiles.shape[1]
     sigma = min(0.5 / lo if lo > 0 else n_rows, n_rows / 6.0)
     return analyse_profiles(profiles, full_scale=_full_scale(plane), band_cpr=(lo, hi),
-                            trend_sigma_rows=sigma, kappa=math.log(1.0 / det.peak_false_prob))
+                            trend_sigma_rows=sigma, false_prob=det.peak_false_prob)
 
 
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:

@@ -37,7 +37,10 @@ def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
             if c1 <= c0:
                 continue
             s_r = plane[r0:r1, c0:c1].mean(axis=1, dtype=np.float64)
-            mag = np.abs(np.fft.rfft(detrend(s_r)))
+            d = detrend(s_r)
+            if not np.abs(d).max(initial=0.0) > 1e-9 * max(np.abs(s_r).max(initial=0.0), 1e-12):
+                continue  # a flat block: its "peaks" would be floating-point round-off
+            mag = np.abs(np.fft.rfft(d))
             peak = np.zeros_like(in_band)
             peak[1:-1] = (mag[1:-1] >= mag[:-2]) & (mag[1:-1] >= mag[2:])
             cand = np.flatnonzero(peak & in_band & (mag > 0))

@@ -49,7 +49,7 @@ def _edges(n: int, k: int) -> list[tuple[int, int]]:
 
 
 def detrend_profiles(profiles: np.ndarray, *, sigma_rows: float) -> tuple[np.ndarray, np.ndarray]:
-    """Relative contrast of each profile against its smooth trend.
+    """Log contrast of each profile against its smooth trend.
 
     Parameters
     ----------
@@ -61,17 +61,21 @@ def detrend_profiles(profiles: np.ndarray, *, sigma_rows: float) -> tuple[np.nda
     Returns
     -------
     contrast : ndarray of shape (n_blocks, n_rows), float64
-        profile / trend - 1 (unitless); 0 where the trend is not positive.
+        ln(profile) - trend (unitless; about the relative contrast for small stripes).
     trend : ndarray, same shape
-        The smoothed profiles.
+        The smoothed ln(profile).
+
+    Notes
+    -----
+    Light multiplies reflectance: a block's row mean is L(i) x mean reflectance of the block's
+    row i, and stays a product after the camera's power-law gamma. In the log domain the LED
+    term is added identically to every block and the scene term is separate, so scene and
+    stripes do not intermodulate. Values are floored at 1e-3 of the largest profile value.
     """
     from scipy.ndimage import gaussian_filter1d
 
     p = profiles.astype(np.float64)
-    trend = gaussian_filter1d(p, sigma=max(float(sigma_rows), 1.0), axis=-1, mode="reflect")
-    floor = max(float(np.abs(trend).max()) * 1e-6, 1e-12)
-    good = trend > floor
-    contrast = np.zeros_like(p)
-    np.divide(p, trend, out=contrast, where=good)
-    contrast -= good
-    return contrast, trend
+    floor = max(float(p.max(initial=0.0)) * 1e-3, 1e-12)
+    logp = np.log(np.maximum(p, floor))
+    trend = gaussian_filter1d(logp, sigma=max(float(sigma_rows), 1.0), axis=-1, mode="reflect")
+    return logp - trend, trend

@@ -1,11 +1,11 @@
-"""`lishield-guard firmware`: compile a barcode into an LED sequence file (C header, JSON, binary)."""
+"""`lishield-guard firmware`: compile a barcode into an LED sequence file (C, JSON or binary)."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -18,7 +18,7 @@ from lishield_guard.errors import LishieldError
 __all__ = ["read_seed", "register"]
 
 
-class Format(str, Enum):
+class Format(StrEnum):
     """Output formats of the firmware command."""
 
     c = "c"

@@ -1,0 +1,117 @@
+"""Request ids, one structured JSON access-log line per request, and request metrics."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import sys
+import time
+import uuid
+from typing import Any
+
+from service.metrics import Metrics
+
+__all__ = ["ACCESS_LOGGER", "JsonFormatter", "RequestContextMiddleware", "configure_logging"]
+
+ACCESS_LOGGER = "lishield_guard.service.access"
+_REQUEST_ID_RE = re.compile(r"^[A-Za-z0-9._:\-]{1,128}$")
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per record: time, level, logger, message and the record's ``fields``."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        out: dict[str, Any] = {
+            "ts": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created))
+            + f".{int(record.msecs):03d}Z",
+            "level": record.levelname.lower(),
+            "logger": record.name,
+            "msg": record.getMessage(),
+        }
+        out.update(getattr(record, "fields", {}))
+        if record.exc_info:
+            out["exc"] = self.formatException(record.exc_info)
+        return json.dumps(out, separators=(",", ":"), default=str)
+
+
+def configure_logging(level: str = "INFO") -> None:
+    """Send the service's loggers to stderr as JSON lines (idempotent; root logger untouched)."""
+    logger = logging.getLogger("lishield_guard.service")
+    logger.setLevel(level.upper())
+    if not any(getattr(h, "_lishield", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(JsonFormatter())
+        handler._lishield = True  # type: ignore[attr-defined]
+        logger.addHandler(handler)
+        logger.propagate = False
+
+
+def _request_id(scope: dict) -> str:
+    for name, value in scope.get("headers", ()):
+        if name == b"x-request-id":
+            text = value.decode("latin-1")
+            if _REQUEST_ID_RE.match(text):
+                return text
+    return uuid.uuid4().hex
+
+
+class RequestContextMiddleware:
+    """Pure ASGI middleware: request id, in-flight gauge, access log line and request metrics.
+
+    Parameters
+    ----------
+    app : ASGI app
+        The wrapped application.
+    metrics : Metrics
+        Where request counts, latency and bytes go.
+    """
+
+    def __init__(self, app, metrics: Metrics) -> None:
+        self.app = app
+        self.metrics = metrics
+        self.log = logging.getLogger(ACCESS_LOGGER)
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        t0 = time.perf_counter()
+        state = scope.setdefault("state", {})
+        rid = state["request_id"] = _request_id(scope)
+        status = 500
+
+        async def send_wrapper(message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+                message.setdefault("headers", [])
+                message["headers"] = [*message["headers"], (b"x-request-id", rid.encode())]
+            await send(message)
+
+        self.metrics.in_flight.inc()
+        try:
+            await self.app(scope, receive, send_wrapper)
+        except Exception:
+            status = 500
+            state.setdefault("error_code", "internal_error")
+            raise
+        finally:
+            self.metrics.in_flight.dec()
+            self._record(scope, state, status, time.perf_counter() - t0)
+
+    def _record(self, scope: dict, state: dict, status: int, elapsed_s: float) -> None:
+        route = getattr(scope.get("route"), "path", "unmatched")
+        code = state.get("error_code")
+        outcome = "ok" if status < 400 else (code or f"http_{status}")
+        received = int(state.get("bytes_received", 0))
+        m = self.metrics
+        m.requests.labels(route, scope["method"], outcome).inc()
+        m.latency.labels(route).observe(elapsed_s)
+        if received:
+            m.bytes_received.labels(route).inc(received)
+        self.log.info("request", extra={"fields": {
+            "event": "access", "request_id": state.get("request_id"), "method": scope["method"],
+            "path": scope["path"], "route": route, "status": status, "outcome": outcome,
+            "code": code, "protected": state.get("protected"), "policy": state.get("policy"),
+            "bytes": received, "duration_ms": round(elapsed_s * 1e3, 3)}})

@@ -1,0 +1,96 @@
+"""``POST /v1/screen`` and ``POST /v1/screen/batch``: image bytes in, verdicts out."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Query, Request
+from starlette.datastructures import UploadFile
+
+from lishield_guard import Verdict
+from service.deps import (
+    MULTIPART,
+    ServiceState,
+    get_service,
+    read_form,
+    read_image,
+    require_token,
+    upload_bytes,
+)
+from service.errors import ServiceError, describe
+from service.schemas import BatchEntry, BatchResult, ErrorBody, ScreenResult
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1", tags=["screening"], dependencies=[Depends(require_token)])
+
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+_SCREEN_BODY = {"requestBody": {"required": True, "content": {
+    MULTIPART: {"schema": {"type": "object", "required": ["file"],
+                           "properties": {"file": {"type": "string", "format": "binary"}}}},
+    "application/octet-stream": _BINARY, "image/jpeg": _BINARY, "image/png": _BINARY}}}
+_BATCH_BODY = {"requestBody": {"required": True, "content": {
+    MULTIPART: {"schema": {"type": "object", "required": ["files"], "properties": {
+        "files": {"type": "array", "items": {"type": "string", "format": "binary"}}}}}}}}
+
+
+def _errors(*statuses: int) -> dict:
+    return {s: {"model": ErrorBody} for s in statuses}
+
+
+_EXPLAIN = Query(False, description="Include the detector's evidence (tones, ratios, blocks).")
+
+
+def _result(request: Request, svc: ServiceState, verdict: Verdict, explain: bool,
+            *, record: bool = True) -> ScreenResult:
+    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    if record:
+        request.state.protected = verdict.protected
+        request.state.policy = verdict.policy
+    return ScreenResult(**verdict.to_dict(explain=explain),
+                        request_id=request.state.request_id)
+
+
+@router.post("/screen", response_model=ScreenResult, response_model_exclude_unset=True,
+             summary="Screen one image", openapi_extra=_SCREEN_BODY,
+             responses=_errors(400, 401, 413, 415, 422, 503, 504))
+async def screen(request: Request, explain: bool = _EXPLAIN,
+                 svc: ServiceState = Depends(get_service)) -> ScreenResult:
+    """Screen one image sent as multipart field ``file`` or as the raw body (any type)."""
+    data = await read_image(request, svc.settings)
+    verdict = await svc.pool.detect(data)
+    return _result(request, svc, verdict, explain)
+
+
+@router.post("/screen/batch", response_model=BatchResult, response_model_exclude_unset=True,
+             summary="Screen several images", openapi_extra=_BATCH_BODY,
+             responses=_errors(400, 401, 413, 415, 422))
+async def screen_batch(request: Request, explain: bool = _EXPLAIN,
+                       svc: ServiceState = Depends(get_service)) -> BatchResult:
+    """Screen multipart files ``files`` (or ``file``); a bad file gets its own error entry."""
+    s = svc.settings
+    if not request.headers.get("content-type", "").lower().startswith(MULTIPART):
+        raise ServiceError(415, "unsupported_media_type", "batch needs multipart/form-data "
+                           "with one or more file fields named 'files'")
+    form = await read_form(request, s.max_batch_bytes, max_files=s.max_batch_files + 1)
+    try:
+        parts = [p for p in form.getlist("files") + form.getlist("file")
+                 if isinstance(p, UploadFile)]
+        if not parts:
+            raise ServiceError(422, "invalid_request", "no file fields named 'files'")
+        if len(parts) > s.max_batch_files:
+            raise ServiceError(422, "too_many_files", f"{len(parts)} files > max_batch_files="
+                               f"{s.max_batch_files}")
+        entries = []
+        for i, part in enumerate(parts):
+            entry = BatchEntry(index=i, filename=part.filename, status=200)
+            try:
+                verdict = await svc.pool.detect(await upload_bytes(part, s.max_upload_bytes))
+                entry.result = _result(request, svc, verdict, explain, record=False)
+            except Exception as exc:  # noqa: BLE001 - typed errors become per-file entries
+                status, code, message, _ = describe(exc)
+                if code == "internal_error":
+                    raise
+                entry.status, entry.error = status, ErrorBody(code=code, message=message)
+            entries.append(entry)
+    finally:
+        await form.close()
+    return BatchResult(request_id=request.state.request_id, results=entries)

@@ -1,0 +1,69 @@
+"""Service settings from ``LISHIELD_*`` environment variables (pydantic-settings)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["ServiceSettings"]
+
+
+def _default_concurrency() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+class ServiceSettings(BaseSettings):
+    """Everything the HTTP service can be told; each field reads ``LISHIELD_<NAME>``.
+
+    Attributes
+    ----------
+    config_path : Path or None
+        Detector/policy TOML file (``LISHIELD_CONFIG_PATH``); None uses the shipped default.
+    api_token : SecretStr or None
+        Bearer token required on every ``/v1`` route (``LISHIELD_API_TOKEN``); None disables auth.
+    protect_metrics : bool
+        Also require the token on ``/metrics``.
+    max_upload_bytes : int
+        Largest image accepted, in bytes; the request body of ``/v1/screen`` may exceed it by
+        ``multipart_overhead_bytes`` (form boundaries and headers).
+    multipart_overhead_bytes : int
+        Slack for multipart framing on top of ``max_upload_bytes``, in bytes.
+    max_batch_files : int
+        Most files in one ``/v1/screen/batch`` request.
+    max_batch_bytes : int
+        Largest request body of ``/v1/screen/batch``, in bytes.
+    max_pixels : int or None
+        Pixel cap overriding the config file's ``limits.max_pixels``.
+    max_concurrency : int
+        Detections running at once (threads of the detection pool).
+    max_queue : int
+        Detections allowed to wait for a thread; beyond, requests get 503 ``overloaded``.
+    detect_timeout_s : float
+        Budget of one detection including its queue wait, in seconds; beyond, 504 ``timeout``.
+    retry_after_s : int
+        ``Retry-After`` sent with 503 ``overloaded``, in seconds.
+    warmup : bool
+        Run one detection on a small synthetic array at startup before ``/readyz`` says ready.
+    log_level : str
+        Level of the JSON access log (``lishield_guard.service.access``).
+    """
+
+    model_config = SettingsConfigDict(env_prefix="LISHIELD_", extra="ignore", frozen=True)
+
+    config_path: Path | None = None
+    api_token: SecretStr | None = None
+    protect_metrics: bool = False
+    max_upload_bytes: int = Field(default=32 * 1024 * 1024, ge=1)
+    multipart_overhead_bytes: int = Field(default=64 * 1024, ge=0)
+    max_batch_files: int = Field(default=16, ge=1)
+    max_batch_bytes: int = Field(default=128 * 1024 * 1024, ge=1)
+    max_pixels: int | None = Field(default=None, ge=1)
+    max_concurrency: int = Field(default_factory=_default_concurrency, ge=1)
+    max_queue: int = Field(default=16, ge=0)
+    detect_timeout_s: float = Field(default=10.0, gt=0)
+    retry_after_s: int = Field(default=1, ge=0)
+    warmup: bool = True
+    log_level: str = "INFO"

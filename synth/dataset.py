@@ -1,0 +1,503 @@
+"""Labelled synthetic datasets: barcode captures and look-alike negatives, with a JSONL manifest.
+
+Every item is drawn from a `Mix` of distributions using its own seed, derived from
+``np.random.SeedSequence([seed, index])``, so output is byte-identical for a seed whatever the
+number of worker processes.
+
+The default mix (``MIXES["default"]``)
+--------------------------------------
+Positives (label 1, kind ``"barcode"``):
+
+- preset: 50% monochrome (``table1-seq1/2/3`` uniformly), 50% RGB (``table2-rgb``);
+- switching rate f_B uniform in [200 Hz, f_1] (paper Sec. 7.3 used 200 Hz), raised where needed
+  to just above 80 Hz * M so the spec passes the firmware's flicker rule (f_B / M > 80 Hz; for
+  M = 3 the lower bound becomes 240.24 Hz);
+- exposure log-uniform in [1/8000, 1/500] s; 20% manual-exposure attack: t_e = k / f with f one
+  random tone of one channel and k uniform among 1..3 keeping t_e within [1/8000, 1/200] s;
+- ambient ratio (steady white light / LED average): 30% zero, else log-uniform in [0.1, 10];
+- coverage: 25% partial (lit fraction uniform 0.3-0.8, raised-cosine radial falloff centred
+  uniformly in the frame), else the LED lights the whole frame;
+- row rate uniform in 30-120 kHz; random frame start; auto gain; shot and read noise;
+- JPEG quality uniform 60-95, chroma 4:2:0 (80%) or 4:4:4;
+- 40% downscaled by a factor uniform in [1.25, 3] (``cv2.INTER_AREA``);
+- 20% rotated by 90 or 270 degrees, half as an EXIF orientation tag only, half baked into pixels;
+- scene: a random scikit-image photo with a random crop (80%) or a procedural texture (20%).
+
+Negatives (label 0): 30% steady light (kind ``"steady"``), 25% mains flicker (``"mains"``:
+100 or 120 Hz, depth uniform 0.05-1), 25% PWM dimming (``"pwm"``: frequency log-uniform
+90 Hz-20 kHz, duty 0.1-0.9, depth 0.2-1), 20% periodic texture (blinds, bricks, fabric) under
+steady light (``"texture"``); the same camera, ambient, JPEG, downscale and rotation mix as
+positives (no attack; no coverage map, since there is no LED).
+
+Other mixes: ``mono`` and ``rgb`` (positives of one kind only), ``negatives-only`` (no
+positives allowed), ``easy`` (no attack, no ambient light, full coverage, no downscale or
+rotation). Any field can be overridden with `Mix.with_overrides` (CLI ``--set key=value``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lishield_guard.camera import CameraModel
+from lishield_guard.errors import ConfigError
+from lishield_guard.spec import get_preset
+
+__all__ = [
+    "MIXES",
+    "SIZES",
+    "Mix",
+    "demo_images",
+    "item_seed",
+    "parse_size",
+    "render_item",
+    "sample_item",
+    "write_dataset",
+]
+
+SIZES = {"1080p": (1080, 1920), "720p": (720, 1280), "12mp": (3024, 4032),
+         "8mp": (2448, 3264)}  # name -> (n_rows, n_cols); sensor rows run down the height
+FLICKER_RULE_HZ = 80.0  # lishield_guard.spec: f_B / M must exceed this
+NEGATIVE_KINDS = ("steady", "mains", "pwm", "texture")
+# A 16 MHz timer (a common MCU clock) keeps every tone ratio within 1e-4 for any f_B drawn;
+# at 1 MHz, slots of a non-integer f_B lose up to 1e-3 of a ratio to tick rounding.
+LED_CLOCK_HZ = 16_000_000
+
+
+@dataclass(frozen=True)
+class Mix:
+    """Distributions a dataset's items are drawn from (see the module docstring).
+
+    Probabilities are unitless in [0, 1]; ranges are (low, high) tuples.
+    """
+
+    name: str = "default"
+    allow_positives: bool = True
+    rgb_prob: float = 0.5
+    mono_presets: tuple[str, ...] = ("table1-seq1", "table1-seq2", "table1-seq3")
+    rgb_presets: tuple[str, ...] = ("table2-rgb",)
+    switching_min_hz: float = 200.0
+    exposure_range_s: tuple[float, float] = (1 / 8000, 1 / 500)
+    attack_prob: float = 0.2
+    attack_max_k: int = 3
+    attack_range_s: tuple[float, float] = (1 / 8000, 1 / 200)
+    ambient_zero_prob: float = 0.3
+    ambient_range: tuple[float, float] = (0.1, 10.0)
+    partial_coverage_prob: float = 0.25
+    coverage_range: tuple[float, float] = (0.3, 0.8)
+    row_rate_range_hz: tuple[float, float] = (30_000.0, 120_000.0)
+    jpeg_quality_range: tuple[int, int] = (60, 95)
+    subsampling_420_prob: float = 0.8
+    downscale_prob: float = 0.4
+    downscale_range: tuple[float, float] = (1.25, 3.0)
+    rotate_prob: float = 0.2
+    rotate_exif_prob: float = 0.5
+    positive_texture_prob: float = 0.2
+    negative_probs: tuple[float, float, float, float] = (0.30, 0.25, 0.25, 0.20)
+    mains_depth_range: tuple[float, float] = (0.05, 1.0)
+    pwm_freq_range_hz: tuple[float, float] = (90.0, 20_000.0)
+    pwm_duty_range: tuple[float, float] = (0.1, 0.9)
+    pwm_depth_range: tuple[float, float] = (0.2, 1.0)
+    noise: bool = True
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name.endswith("_prob") and not 0.0 <= v <= 1.0:
+                raise ConfigError(f"need 0 <= {f.name} <= 1, got {f.name}={v!r}")
+            if f.name.endswith("_range") or f.name.endswith("_range_s") or \
+                    f.name.endswith("_range_hz"):
+                if len(v) != 2 or not v[0] <= v[1]:
+                    raise ConfigError(f"{f.name} must be (low, high) with low <= high, got {v!r}")
+        if len(self.negative_probs) != 4 or abs(sum(self.negative_probs) - 1) > 1e-6 or min(
+                self.negative_probs) < 0:
+            raise ConfigError(f"negative_probs (steady, mains, pwm, texture) must be >= 0 and "
+                              f"sum to 1, got {self.negative_probs!r}")
+        for p in self.mono_presets + self.rgb_presets:
+            get_preset(p)
+        if self.exposure_range_s[0] <= 0:
+            raise ConfigError(f"exposure_range_s must be > 0, got {self.exposure_range_s!r}")
+        if self.downscale_range[0] < 1.0:
+            raise ConfigError(f"downscale_range must be >= 1, got {self.downscale_range!r}")
+
+    def with_overrides(self, overrides: dict[str, str]) -> Mix:
+        """Copy with fields replaced from strings (``"0.5"``, ``"60,95"``, ``"true"``).
+
+        Raises
+        ------
+        ConfigError
+            For an unknown field or a value that does not parse.
+        """
+        fields = {f.name: f for f in dataclasses.fields(self)}
+        kw: dict = {}
+        for key, text in overrides.items():
+            k = key.strip().replace("-", "_")
+            if k not in fields or k == "name":
+                raise ConfigError(f"unknown mix field {key!r}; known: "
+                                  f"{', '.join(n for n in fields if n != 'name')}")
+            cur = getattr(self, k)
+            try:
+                if isinstance(cur, bool):
+                    if text.lower() not in ("true", "false", "1", "0"):
+                        raise ValueError(text)
+                    kw[k] = text.lower() in ("true", "1")
+                elif isinstance(cur, tuple):
+                    parts = [p.strip() for p in text.split(",") if p.strip()]
+                    kw[k] = tuple(type(cur[0])(p) if not isinstance(cur[0], str) else p
+                                  for p in parts) if cur else tuple(parts)
+                else:
+                    kw[k] = type(cur)(text)
+            except ValueError:
+                raise ConfigError(f"cannot parse mix field {key}={text!r}") from None
+        return dataclasses.replace(self, **kw)
+
+
+MIXES: dict[str, Mix] = {
+    "default": Mix(),
+    "mono": Mix(name="mono", rgb_prob=0.0),
+    "rgb": Mix(name="rgb", rgb_prob=1.0),
+    "negatives-only": Mix(name="negatives-only", allow_positives=False),
+    "easy": Mix(name="easy", attack_prob=0.0, ambient_zero_prob=1.0, partial_coverage_prob=0.0,
+                downscale_prob=0.0, rotate_prob=0.0),
+}
+
+
+def parse_size(size: str) -> tuple[int, int]:
+    """``"1080p"``, ``"12mp"`` or ``"WxH"`` -> (n_rows, n_cols) of a landscape sensor.
+
+    Raises
+    ------
+    ConfigError
+        If the text is not a known name or ``WxH`` with both sides >= 16.
+    """
+    s = size.strip().lower()
+    if s in SIZES:
+        return SIZES[s]
+    try:
+        w, h = (int(p) for p in s.split("x"))
+    except ValueError:
+        raise ConfigError(f"size must be one of {', '.join(SIZES)} or WxH, got {size!r}") from None
+    if w < 16 or h < 16:
+        raise ConfigError(f"need width and height >= 16, got size={size!r}")
+    return h, w
+
+
+def item_seed(seed: int, index: int) -> int:
+    """64-bit seed of item ``index`` of a dataset seeded with ``seed`` (order independent)."""
+    state = np.random.SeedSequence([int(seed), int(index)]).generate_state(2, np.uint32)
+    return int(state[0]) << 32 | int(state[1])
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> dict:
+    """Draw every parameter of one item (no rendering).
+
+    Parameters
+    ----------
+    label : {0, 1}
+        1 for a barcode capture, 0 for a negative.
+    seed : int
+        The item's own seed (see `item_seed`).
+    mix : Mix
+        Distributions to draw from.
+    size : (int, int)
+        Sensor (n_rows, n_cols).
+
+    Returns
+    -------
+    dict
+        JSON-ready parameters; `render_item` turns them into an image. Parameters that the
+        renderer uses exactly are stored unrounded.
+    """
+    rng = np.random.default_rng(seed)
+    n_rows, n_cols = size
+    p: dict = {"label": int(label), "item_seed": int(seed), "sensor_rows": n_rows,
+               "sensor_cols": n_cols, "mix": mix.name}
+    row_rate_hz = float(rng.uniform(*mix.row_rate_range_hz))
+    exposure_s = _log_uniform(rng, *mix.exposure_range_s)
+    p["row_rate_hz"] = row_rate_hz
+    p["attack"] = False
+    p["attacked_tone"] = None
+    if label:
+        rgb = rng.random() < mix.rgb_prob
+        presets = mix.rgb_presets if rgb else mix.mono_presets
+        spec = get_preset(str(rng.choice(presets)))
+        lo = max(mix.switching_min_hz, FLICKER_RULE_HZ * spec.n_tones * 1.001)
+        f_b = round(float(rng.uniform(min(lo, spec.f1_hz), spec.f1_hz)), 2)
+        p.update(kind="barcode", preset=spec.name, channels=list(spec.channel_names),
+                 switching_hz=f_b, tones_hz={c: list(fs) for c, fs in spec.channels})
+        if rng.random() < mix.attack_prob:
+            c_idx = int(rng.integers(len(spec.channels)))
+            ch, tones = spec.channels[c_idx]
+            f = float(tones[int(rng.integers(len(tones)))])
+            ks = [k for k in range(1, mix.attack_max_k + 1)
+                  if mix.attack_range_s[0] <= k / f <= mix.attack_range_s[1]]
+            if ks:
+                k = int(ks[int(rng.integers(len(ks)))])
+                exposure_s = k / f
+                p["attack"] = True
+                p["attacked_tone"] = {"channel": ch, "hz": f, "k": k}
+        p["light"] = {"kind": "led", "preset": spec.name, "switching_hz": f_b}
+    else:
+        kind = NEGATIVE_KINDS[int(rng.choice(4, p=np.asarray(mix.negative_probs)))]
+        p.update(kind=kind, preset=None, channels=["W"], switching_hz=None, tones_hz=None)
+        if kind == "mains":
+            p["light"] = {"kind": "mains", "supply_hz": float(rng.choice([50.0, 60.0])),
+                          "depth": float(rng.uniform(*mix.mains_depth_range)),
+                          "phase_s": float(rng.uniform(0, 0.02))}
+        elif kind == "pwm":
+            freq = _log_uniform(rng, *mix.pwm_freq_range_hz)
+            p["light"] = {"kind": "pwm", "freq_hz": freq,
+                          "duty": float(rng.uniform(*mix.pwm_duty_range)),
+                          "depth": float(rng.uniform(*mix.pwm_depth_range)),
+                          "phase_s": float(rng.uniform(0, 1 / freq))}
+        else:
+            p["light"] = {"kind": "steady"}
+    p["exposure_s"] = exposure_s
+    p["ambient_ratio"] = 0.0 if rng.random() < mix.ambient_zero_prob else _log_uniform(
+        rng, *mix.ambient_range)
+    if label and rng.random() < mix.partial_coverage_prob:
+        p["coverage"] = {"fraction": float(rng.uniform(*mix.coverage_range)),
+                         "centre_rc": [float(rng.uniform()), float(rng.uniform())],
+                         "softness": float(rng.uniform(0.1, 0.3))}
+    else:
+        p["coverage"] = {"fraction": 1.0, "centre_rc": None, "softness": None}
+    p["jpeg_quality"] = int(rng.integers(mix.jpeg_quality_range[0],
+                                         mix.jpeg_quality_range[1] + 1))
+    p["chroma_subsampling"] = "4:2:0" if rng.random() < mix.subsampling_420_prob else "4:4:4"
+    p["downscale"] = float(rng.uniform(*mix.downscale_range)) if rng.random() < \
+        mix.downscale_prob else 1.0
+    if rng.random() < mix.rotate_prob:
+        p["rotation_deg"] = int(rng.choice([90, 270]))
+        p["rotation_mode"] = "exif" if rng.random() < mix.rotate_exif_prob else "bake"
+    else:
+        p["rotation_deg"], p["rotation_mode"] = 0, "none"
+    p["frame_start_s"] = float(rng.uniform(0.0, 1.0))
+    p["scene_seed"] = int(rng.integers(2**63))
+    p["noise_seed"] = int(rng.integers(2**63))
+    if p["kind"] == "texture":
+        p["scene_kind"] = "texture"
+    else:
+        p["scene_kind"] = "texture" if (label and rng.random() < mix.positive_texture_prob) \
+            else "photo"
+    p["noise"] = bool(mix.noise)
+    return p
+
+
+def _make_light(p: dict):
+    from synth.light import MainsFlicker, PwmLight, SequenceLight, SteadyLight
+
+    lt = p["light"]
+    if lt["kind"] == "led":
+        from firmware.sequence import compile_spec
+
+        spec = dataclasses.replace(get_preset(lt["preset"]), switching_hz=lt["switching_hz"])
+        return SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ))
+    if lt["kind"] == "mains":
+        return MainsFlicker(supply_hz=lt["supply_hz"], depth=lt["depth"], phase_s=lt["phase_s"])
+    if lt["kind"] == "pwm":
+        return PwmLight(freq_hz=lt["freq_hz"], duty=lt["duty"], depth=lt["depth"],
+                        phase_s=lt["phase_s"])
+    return SteadyLight()
+
+
+def render_item(p: dict) -> tuple[bytes, dict]:
+    """Render the item described by `sample_item` parameters.
+
+    Parameters
+    ----------
+    p : dict
+        Output of `sample_item`.
+
+    Returns
+    -------
+    jpeg : bytes
+        The encoded capture.
+    record : dict
+        ``p`` plus what rendering decided: ``scene`` (description), ``width``, ``height``
+        (stored pixels), ``exif_orientation`` and ``gain``.
+    """
+    from synth.camera import encode_jpeg, postprocess, simulate_frame
+    from synth.light import coverage_map
+    from synth.scene import load_scene, random_scene, texture_scene
+
+    n_rows, n_cols = p["sensor_rows"], p["sensor_cols"]
+    scene_rng = np.random.default_rng(p["scene_seed"])
+    if p.get("scene_name"):
+        scene = load_scene(p["scene_name"], n_rows, n_cols)
+        scene_desc = {"scene": p["scene_name"]}
+    elif p["scene_kind"] == "texture":
+        kind = str(scene_rng.choice(("blinds", "bricks", "fabric")))
+        scene, sp = texture_scene(kind, n_rows, n_cols, rng=scene_rng)
+        scene_desc = {"scene": f"texture:{kind}", **sp}
+    else:
+        scene, scene_desc = random_scene(n_rows, n_cols, rng=scene_rng)
+    cov = p["coverage"]
+    cmap = None
+    if cov["fraction"] < 1.0:
+        cmap = coverage_map(n_rows, n_cols, fraction=cov["fraction"],
+                            centre_rc=tuple(cov["centre_rc"]), softness=cov["softness"])
+    camera = CameraModel(row_time_s=1.0 / p["row_rate_hz"], n_rows=n_rows,
+                         exposure_s=p["exposure_s"])
+    frame = simulate_frame(_make_light(p), scene, camera,
+                           rng=np.random.default_rng(p["noise_seed"]),
+                           start_s=p["frame_start_s"], ambient_ratio=p["ambient_ratio"],
+                           coverage=cmap, noise=p["noise"])
+    rot_mode = "bake" if p["rotation_mode"] == "none" else p["rotation_mode"]
+    img, orient = postprocess(frame, downscale=p["downscale"], rotation_deg=p["rotation_deg"],
+                              rotation_mode=rot_mode)
+    data = encode_jpeg(img, quality=p["jpeg_quality"], subsampling=p["chroma_subsampling"],
+                       exif_orientation=orient)
+    rec = dict(p)
+    rec.update(scene=scene_desc, height=int(img.shape[0]), width=int(img.shape[1]),
+               exif_orientation=orient)
+    return data, rec
+
+
+def _work(args: tuple) -> dict:
+    index, label, seed, mix, size, out_dir = args
+    s = item_seed(seed, index)
+    p = sample_item(label, seed=s, mix=mix, size=size)
+    data, rec = render_item(p)
+    name = f"{index:06d}.jpg"
+    (Path(out_dir) / name).write_bytes(data)
+    return {"file": name, "index": index, **rec}
+
+
+def _init_worker() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
+                  mix: Mix | str = "default", size: str | tuple[int, int] = "1080p",
+                  jobs: int = 1, progress: bool | Callable = True) -> Path:
+    """Render a labelled dataset: ``out_dir/NNNNNN.jpg`` plus ``out_dir/manifest.jsonl``.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Output folder, created if missing.
+    n_pos, n_neg : int
+        Number of barcode captures and of negatives (>= 0, total >= 1).
+    seed : int
+        Dataset seed; the label order and every item derive from it.
+    mix : Mix or str
+        Distributions, or a key of `MIXES`.
+    size : str or (int, int)
+        ``"1080p"``, ``"12mp"``, ``"WxH"`` or (n_rows, n_cols).
+    jobs : int
+        Worker processes (>= 1). The output does not depend on it.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+
+    Returns
+    -------
+    Path
+        The manifest path. Each line: ``file``, ``label`` (1/0), ``kind`` and every parameter
+        (see `sample_item` and `render_item`), in index order.
+
+    Raises
+    ------
+    ConfigError
+        Bad counts, mix, size or jobs.
+    """
+    if isinstance(mix, str):
+        if mix not in MIXES:
+            raise ConfigError(f"unknown mix {mix!r}; known: {', '.join(MIXES)}")
+        mix = MIXES[mix]
+    size_rc = parse_size(size) if isinstance(size, str) else (int(size[0]), int(size[1]))
+    if n_pos < 0 or n_neg < 0 or n_pos + n_neg < 1:
+        raise ConfigError(f"need n_pos, n_neg >= 0 and n_pos + n_neg >= 1, got n_pos={n_pos}, "
+                          f"n_neg={n_neg}")
+    if n_pos and not mix.allow_positives:
+        raise ConfigError(f"mix {mix.name!r} makes negatives only; got n_pos={n_pos} (use 0)")
+    if jobs < 1:
+        raise ConfigError(f"need jobs >= 1, got jobs={jobs!r}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    n = n_pos + n_neg
+    labels = np.zeros(n, dtype=int)
+    labels[:n_pos] = 1
+    labels = np.random.default_rng(np.random.SeedSequence([int(seed), 2**31])).permutation(labels)
+    tasks = [(i, int(labels[i]), int(seed), mix, size_rc, str(out)) for i in range(n)]
+    from tqdm import tqdm
+
+    bar = tqdm(total=n, desc="synth", unit="img", disable=not progress, file=None)
+    records: list[dict] = []
+    try:
+        if jobs == 1:
+            for t in tasks:
+                records.append(_work(t))
+                bar.update()
+        else:
+            import multiprocessing as mp
+
+            ctx = mp.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
+                                     initializer=_init_worker) as ex:
+                for rec in ex.map(_work, tasks, chunksize=max(1, min(8, n // (4 * jobs)))):
+                    records.append(rec)
+                    bar.update()
+    finally:
+        bar.close()
+    manifest = out / "manifest.jsonl"
+    tmp = manifest.with_suffix(".jsonl.tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        for rec in records:
+            fh.write(json.dumps(rec, sort_keys=True) + "\n")
+    os.replace(tmp, manifest)
+    return manifest
+
+
+def demo_images(out_dir: str | Path, *, seed: int = 0) -> tuple[Path, Path]:
+    """Write one protected and one clean 1080p JPEG of the same scene (for ``make run``).
+
+    The protected capture is ``table1-seq1`` (400/600/800 Hz, f_B = 400 Hz) at 60 kHz row rate
+    and 1/2000 s exposure, full coverage, no ambient light, JPEG quality 90; the clean one is
+    the same camera under steady light.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Output folder, created if missing.
+    seed : int
+        Noise and frame-start seed.
+
+    Returns
+    -------
+    (Path, Path)
+        ``(protected_path, clean_path)``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    base = {"label": 1, "item_seed": int(seed), "sensor_rows": 1080, "sensor_cols": 1920,
+            "mix": "demo", "row_rate_hz": 60_000.0, "exposure_s": 1 / 2000, "attack": False,
+            "attacked_tone": None, "ambient_ratio": 0.0,
+            "coverage": {"fraction": 1.0, "centre_rc": None, "softness": None},
+            "jpeg_quality": 90, "chroma_subsampling": "4:2:0", "downscale": 1.0,
+            "rotation_deg": 0, "rotation_mode": "none", "frame_start_s": 0.0123,
+            "scene_seed": int(seed), "noise_seed": int(seed) + 1, "scene_kind": "photo",
+            "scene_name": "skimage:astronaut", "noise": True}
+    pos = dict(base, kind="barcode", preset="table1-seq1",
+               light={"kind": "led", "preset": "table1-seq1", "switching_hz": 400.0})
+    neg = dict(base, label=0, kind="steady", light={"kind": "steady"})
+    paths = []
+    for name, p in (("protected.jpg", pos), ("clean.jpg", neg)):
+        data, _ = render_item(p)
+        path = out / name
+        path.write_bytes(data)
+        paths.append(path)
+    return paths[0], paths[1]

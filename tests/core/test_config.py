@@ -1,0 +1,123 @@
+"""Config file: load/dump round trip and typed errors for bad files."""
+
+from __future__ import annotations
+
+import pytest
+
+from lishield_guard.config import (
+    AppConfig,
+    DetectorConfig,
+    Limits,
+    Policy,
+    default_config,
+    dump_config,
+    load_config,
+)
+from lishield_guard.errors import ConfigError
+from lishield_guard.spec import PRESETS, BarcodeSpec
+
+
+def _write(tmp_path, text: str):
+    p = tmp_path / "cfg.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_default_config_loads():
+    cfg = default_config()
+    assert cfg is default_config()  # cached
+    assert cfg.detector == DetectorConfig()
+    assert [p.id for p in cfg.policies] == ["no-distribution"]
+    assert cfg.policies[0].specs == tuple(PRESETS[n] for n in
+                                          ("table1-seq1", "table1-seq2", "table1-seq3",
+                                           "table2-rgb"))
+
+
+def test_dump_load_round_trip(tmp_path):
+    custom = BarcodeSpec.mono("venue", [500, 750, 1000], duty=0.4, intensity_levels=3)
+    cfg = AppConfig(
+        detector=DetectorConfig(profile="paper", ratio_tol=0.04, band_hz=(300.0, 12_000.0)),
+        limits=Limits(max_pixels=1_000_000, max_bytes=2_000_000),
+        policies=(Policy("no-distribution", (PRESETS["table1-seq1"], custom), "desc"),
+                  Policy("blur", (PRESETS["table2-rgb"],))),
+    )
+    text = dump_config(cfg, header="written by a test\nsecond line")
+    assert text.startswith("# written by a test\n# second line\n")
+    back = load_config(_write(tmp_path, text))
+    assert back == cfg
+    assert back.policies[0].specs[1] == custom
+    assert "# written by a test" in back.header
+    # dump(load(dump(x))) is a fixed point
+    assert dump_config(back) == dump_config(cfg)
+
+
+def test_round_trip_of_shipped_default(tmp_path):
+    cfg = default_config()
+    assert load_config(_write(tmp_path, dump_config(cfg))) == cfg
+
+
+def test_policy_ratio_values_are_union():
+    pol = Policy("p", (PRESETS["table1-seq1"], PRESETS["table3-m2"]))
+    assert pol.ratio_values().tolist() == pytest.approx([1.25, 4 / 3, 1.5, 2.0])
+    assert pol.to_dict()["ratios"] == [1.25, 1.333333, 1.5, 2.0]
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("colour = 1\n", "unknown top-level keys"),
+        ("[detector]\nmax_peakz = 3\n", r"unknown \[detector\] keys"),
+        ("[limits]\nmax_megabytes = 3\n", r"unknown \[limits\] keys"),
+        ("[detector]\nprofile = \"fast\"\n", "profile"),
+        ("[detector]\nn_block_rows = 0\n", "n_block_rows"),
+        ("[detector]\nmax_peaks = 1.5\n", "max_peaks"),
+        ("[detector]\nband_hz = [15000, 400]\n", "band_hz"),
+        ("[detector]\nmin_row_rate_hz = 200000\n", "min_row_rate_hz"),
+        ("[detector]\nmax_downscale = 0.5\n", "max_downscale"),
+        ("[detector]\npeak_false_prob = 1.0\n", "peak_false_prob"),
+        ("[detector]\nratio_tol = -0.1\n", "ratio_tol"),
+        ("[detector]\nm_att = -1\n", "m_att"),
+        ("[detector]\norientations = \"diagonal\"\n", "orientations"),
+        ("[limits]\nmax_bytes = 0\n", "max_bytes"),
+        ("[detector]\nratio_tol = \"a\"\n", "real number"),
+        ("[[policies]]\nid = \"p\"\npresets = [\"table9\"]\n", "unknown preset 'table9'"),
+        ("[[policies]]\nid = \"p\"\n", "needs at least one barcode spec"),
+        ("[[policies]]\ndescription = \"no id\"\n", "needs an 'id'"),
+        ("[[policies]]\nid = \"p\"\npresets = [\"table1-seq1\"]\n"
+         "[[policies]]\nid = \"p\"\npresets = [\"table1-seq2\"]\n", "duplicate policy ids"),
+        ("[[policies]]\nid = \"p\"\nspecs = [{name = \"x\", channels = {W = [400, 600]}, "
+         "duty = 2.0}]\n", "duty"),
+        ("[[policies]]\nid = \"p\"\nspecs = [{name = \"x\"}]\n", "needs 'name' and 'channels'"),
+        ("[[policies]]\nid = \"p\"\nspecs = [3]\n", "preset name or a table"),
+        ("[detector\n", "not valid TOML"),
+    ],
+)
+def test_bad_config_raises_config_error(tmp_path, text, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(_write(tmp_path, text))
+
+
+@pytest.mark.parametrize("text", [
+    "[detector]\nn_block_rows = \"a\"\n",
+    "[detector]\nband_hz = \"x\"\n",
+    "[detector]\nband_hz = [400]\n",
+    "policies = 3\n",
+])
+def test_wrong_value_types_raise_config_error(tmp_path, text):
+    with pytest.raises(ConfigError):
+        load_config(_write(tmp_path, text))
+
+
+def test_missing_file_raises_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read config file") as info:
+        load_config(tmp_path / "nope.toml")
+    assert "nope.toml" in str(info.value)
+
+
+def test_dataclass_validation_messages_name_the_field():
+    with pytest.raises(ConfigError, match="max_pixels"):
+        Limits(max_pixels=0)
+    with pytest.raises(ConfigError, match="n_col_blocks"):
+        DetectorConfig().replace(n_col_blocks=0)
+    with pytest.raises(ConfigError, match="policy id"):
+        Policy("", (PRESETS["table1-seq1"],))

@@ -1,0 +1,95 @@
+"""Detector: known answers, null cases, profiles, orientation and the Verdict contract."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lishield_guard import PRESETS, DetectorConfig, Verdict, detect
+
+PAPER = DetectorConfig(profile="paper")
+
+
+@pytest.mark.parametrize("name, switching_hz", [
+    ("table1-seq1", 200.0), ("table1-seq2", 200.0), ("table1-seq2", 300.0),
+])
+def test_default_profile_finds_mono_barcodes(make_led_image, name, switching_hz):
+    v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz))
+    assert v.protected, v.evidence["reason"]
+    assert v.policy == "no-distribution"
+    assert v.matches >= v.required
+
+
+def test_rotated_pixels_still_detected(make_led_image):
+    img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, jpeg=None)
+    v = detect(np.rot90(img).copy())
+    assert v.protected
+    assert v.evidence["candidates"][0]["axis"] == "columns" or any(
+        c["axis"] == "columns" and c["n_matched"] >= 2 for c in v.evidence["candidates"])
+
+
+@pytest.mark.parametrize("depth", [0.3, 1.0])
+@pytest.mark.parametrize("mains_hz", [100.0, 120.0])
+def test_mains_flicker_is_not_a_barcode(make_led_image, mains_hz, depth):
+    t = np.arange(1080) / 30_000.0
+    flicker = 0.5 * (1 - depth + depth * np.abs(np.sin(np.pi * mains_hz * t)))
+    v = detect(make_led_image(None, flicker=flicker))
+    assert not v.protected, v.evidence["reason"]
+
+
+@pytest.mark.parametrize("pwm_hz", [400.0, 1000.0, 3000.0])
+def test_pwm_dimming_is_not_a_barcode(make_led_image, pwm_hz):
+    t = np.arange(1080) / 30_000.0
+    flicker = 0.25 + 0.5 * (((t * pwm_hz) % 1.0) < 0.3)
+    v = detect(make_led_image(None, flicker=flicker))
+    assert not v.protected, v.evidence["reason"]
+
+
+def test_steady_light_photo_is_clean(make_led_image):
+    v = detect(make_led_image(None))
+    assert not v.protected
+    assert v.policy is None
+
+
+def test_noise_and_flat_frames_are_clean(rng):
+    noise = rng.integers(0, 256, (720, 960), dtype=np.uint8)
+    assert not detect(noise).protected
+    assert not detect(np.full((720, 960), 128, np.uint8)).protected
+
+
+def test_paper_profile_runs_algorithm_1(make_led_image):
+    v = detect(make_led_image(PRESETS["table1-seq1"], switching_hz=200.0), PAPER)
+    assert v.profile == "paper"
+    # M_b = ceil(0.1 * 3 + 2) = 3 for a monochrome spec, ceil(0.1 * 36 + 2) = 6 for RGB
+    assert v.required in (3, 6)
+    assert v.evidence["frequencies_hz"]
+
+
+def test_default_profile_beats_paper_on_clean_photos():
+    from skimage import data
+
+    photos = [data.astronaut(), data.coffee(), data.chelsea(), data.rocket()]
+    paper = sum(detect(p, PAPER).protected for p in photos)
+    default = sum(detect(p).protected for p in photos)
+    assert default == 0
+    assert paper > default
+
+
+def test_verdict_contract_is_json_ready(make_led_image):
+    v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
+    assert isinstance(v, Verdict)
+    d = v.to_dict()
+    for key in ("protected", "policy", "matches", "required", "evidence", "skipped",
+                "timings_ms"):
+        assert key in d
+    json.dumps(d, allow_nan=False)
+    assert "evidence" not in v.to_dict(explain=False)
+    assert d["timings_ms"]["decode"] >= 0
+
+
+def test_luma_verdict_skips_colour_planes(make_led_image):
+    v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
+    assert v.protected
+    assert any("colour planes" in s for s in v.skipped)

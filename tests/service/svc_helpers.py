@@ -1,0 +1,90 @@
+"""Helpers of the service tests: a live uvicorn server and hand-crafted hostile images."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import socket
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import httpx
+import uvicorn
+from PIL import Image
+
+from service.app import create_app
+from service.settings import ServiceSettings
+
+# Small enough that limit tests stay fast, large enough for the 1080p demo JPEGs.
+TEST_MAX_UPLOAD_BYTES = 3_000_000
+TEST_MAX_PIXELS = 20_000_000
+
+
+@dataclass
+class LiveServer:
+    """A uvicorn server running in a background thread."""
+
+    url: str
+    app: object
+    settings: ServiceSettings
+
+    def client(self, **kwargs) -> httpx.Client:
+        return httpx.Client(base_url=self.url, timeout=30.0, **kwargs)
+
+
+@contextlib.contextmanager
+def live_server(settings: ServiceSettings, **app_kwargs) -> Iterator[LiveServer]:
+    """Start ``create_app(settings)`` under uvicorn on 127.0.0.1 with a free port."""
+    app = create_app(settings, **app_kwargs)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False,
+                                           lifespan="on", timeout_graceful_shutdown=2))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.02)
+    try:
+        yield LiveServer(f"http://127.0.0.1:{port}", app, settings)
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
+        sock.close()
+
+
+def make_settings(**overrides) -> ServiceSettings:
+    """Test settings, independent of the caller's LISHIELD_* environment."""
+    base = {"config_path": None, "api_token": None, "protect_metrics": False,
+            "max_upload_bytes": TEST_MAX_UPLOAD_BYTES, "max_pixels": TEST_MAX_PIXELS,
+            "max_concurrency": 4, "max_queue": 32, "detect_timeout_s": 30.0,
+            "log_level": "WARNING"}
+    base.update(overrides)
+    return ServiceSettings(_env_file=None, **base)
+
+
+def png_declaring(n_cols: int, n_rows: int) -> bytes:
+    """A PNG whose IHDR declares ``n_cols x n_rows`` 8-bit grey pixels (valid CRCs, tiny IDAT)."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+    ihdr = struct.pack(">IIBBBBB", n_cols, n_rows, 8, 0, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+            + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b""))
+
+
+def bomb_png(n_side: int = 6000) -> bytes:
+    """A small PNG of a huge blank image (``n_side**2`` pixels, a few tens of kB)."""
+    buf = io.BytesIO()
+    Image.new("L", (n_side, n_side), 0).save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
