@@ -61,10 +61,13 @@ class SpecMatch:
     switches: int
     protected: bool
     reason: str
+    fold: dict | None = None
 
     @property
     def score(self) -> float:
         """Evidence strength in [0, 1]: purity times the fraction of required tones found."""
+        if self.fold is not None and self.protected:
+            return float(self.fold["rho"])
         if self.required <= 0:
             return 0.0
         return float(min(1.0, self.n_matched / self.required) * min(1.0, self.purity))
@@ -77,7 +80,7 @@ class SpecMatch:
                 "occupancy": {c: [round(o, 4) for o in v] for c, v in self.occupancy.items()},
                 "matched_hz": self.matched, "n_matched": self.n_matched,
                 "required": self.required, "purity": round(self.purity, 4),
-                "switches": self.switches, "reason": self.reason}
+                "switches": self.switches, "reason": self.reason, "fold": self.fold}
 
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:

@@ -78,6 +78,19 @@ class DetectorConfig:
         Fraction of significant band samples the matched tones must explain (unitless).
     orientations : {"both", "rows"}
         Also analyse columns, so rotation baked into pixels is still detected.
+    fold_min_rho : float
+        Pattern folding (fold.py): smallest normalised correlation between the folded row
+        signal and a spec's template that counts as that barcode (unitless, 0-1).
+    fold_min_snr : float
+        Pattern folding: the folded pattern's power over its noise power must exceed this.
+    fast_decode : bool
+        Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
+        False decodes full colour with Pillow first (the reference the fast path is measured
+        against).
+    max_decode_rows : int
+        JPEGs taller than twice this are decoded at 1/2, 1/4 or 1/8 scale in the DCT domain,
+        keeping at least this many rows (0 disables). Row frequencies scale with it and the
+        matcher accounts for the factor.
     """
 
     profile: Literal["default", "paper"] = "default"
@@ -103,6 +116,10 @@ class DetectorConfig:
     max_occupancy: float = 0.8
     min_purity: float = 0.5
     orientations: Literal["both", "rows"] = "both"
+    fold_min_rho: float = 0.85
+    fold_min_snr: float = 30.0
+    fast_decode: bool = True
+    max_decode_rows: int = 1536
 
     def __post_init__(self) -> None:
         if self.profile not in ("default", "paper"):
@@ -134,6 +151,8 @@ class DetectorConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"need {name} > 0, got {name}={v!r}")
+        if int(self.max_decode_rows) != self.max_decode_rows or self.max_decode_rows < 0:
+            raise ConfigError(f"need integer max_decode_rows >= 0, got {self.max_decode_rows!r}")
         if self.orientations not in ("both", "rows"):
             raise ConfigError(f"orientations must be 'both' or 'rows', got {self.orientations!r}")
 

@@ -101,6 +101,8 @@ class Decoded:
         EXIF orientation tag (1 when absent); 5-8 mean the display is rotated by 90 degrees.
     is_color : bool
         True when the source has colour channels.
+    row_scale : float
+        Stored rows per decoded row (1, or 2/4/8 after DCT-domain downscaling of a JPEG).
     """
 
     luma: np.ndarray
@@ -108,6 +110,7 @@ class Decoded:
     n_bytes: int
     orientation: int = 1
     is_color: bool = False
+    row_scale: float = 1.0
     _data: bytes | None = field(default=None, repr=False)
     _rgb: np.ndarray | None = field(default=None, repr=False)
 
@@ -117,7 +120,8 @@ class Decoded:
             if not self.is_color:
                 self._rgb = np.repeat(self.luma[:, :, None], 3, axis=2)
             elif self._data is not None:
-                self._rgb = _decode_pixels(self._data, want_rgb=True)[0]
+                rows = self.luma.shape[0] if self.row_scale > 1 else 0
+                self._rgb = _decode_pixels(self._data, want_rgb=True, min_rows=rows)[0]
             else:  # pragma: no cover - arrays always keep their rgb
                 raise InvalidImageError("colour planes are not available")
         return self._rgb
@@ -166,14 +170,16 @@ def _open(data: bytes) -> Image.Image:
         raise CorruptImageError(f"cannot read image header: {exc}") from exc
 
 
-def _decode_pixels(data: bytes, *, want_rgb: bool) -> tuple[np.ndarray, bool]:
-    if data.startswith(_JPEG_MAGIC):
+def _decode_pixels(data: bytes, *, want_rgb: bool, fast: bool = True,
+                   min_rows: int = 0) -> tuple[np.ndarray, bool]:
+    if fast and data.startswith(_JPEG_MAGIC):
         import simplejpeg
 
         try:
             if want_rgb:
-                return simplejpeg.decode_jpeg(data, colorspace="RGB"), True
-            return simplejpeg.decode_jpeg(data, colorspace="GRAY")[:, :, 0], True
+                return simplejpeg.decode_jpeg(data, colorspace="RGB", min_height=min_rows), True
+            gray = simplejpeg.decode_jpeg(data, colorspace="GRAY", min_height=min_rows)
+            return gray[:, :, 0], True
         except ValueError:
             pass  # CMYK, arithmetic coding or a warning: let Pillow decide below
     img = _open(data)
@@ -187,6 +193,10 @@ def _decode_pixels(data: bytes, *, want_rgb: bool) -> tuple[np.ndarray, bool]:
     except (OSError, ValueError, SyntaxError, EOFError, IndexError, MemoryError) as exc:
         raise CorruptImageError(f"truncated or corrupt {img.format or 'image'} data: "
                                 f"{exc}") from exc
+    if not fast and not want_rgb and img.mode not in ("I;16", "I;16B", "I;16L", "I;16N", "I",
+                                                      "F", "1", "L", "LA"):
+        rgb = np.asarray(img.convert("RGB"), dtype=np.float32)
+        return _luma_of(rgb), True
     return _pil_to_array(img, want_rgb=want_rgb)
 
 
@@ -198,7 +208,8 @@ def _orientation(img: Image.Image) -> int:
     return value if 1 <= value <= 8 else 1
 
 
-def decode(source, *, limits: Limits | None = None, want_rgb: bool = False) -> Decoded:
+def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast: bool = True,
+           max_rows: int = 0) -> Decoded:
     """Decode bytes, a file path or an array into a `Decoded` image.
 
     Parameters
@@ -209,6 +220,12 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False) -> D
         Byte and pixel caps; default `Limits()`.
     want_rgb : bool
         Decode colour planes now (otherwise they are decoded on demand by `Decoded.rgb`).
+    fast : bool
+        JPEG luma straight to gray with libjpeg-turbo; False decodes full colour with Pillow
+        and converts to float32 luma (the reference path).
+    max_rows : int
+        With ``fast``, a JPEG with at least twice this many rows is decoded at 1/2, 1/4 or
+        1/8 scale in the DCT domain, keeping >= max_rows rows (0 disables).
 
     Raises
     ------
@@ -260,10 +277,14 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False) -> D
         raise CorruptImageError(f"image declares an empty size {n_cols}x{n_rows}")
     orientation = _orientation(img)
     fmt = img.format or "unknown"
-    pixels, is_color = _decode_pixels(data, want_rgb=want_rgb)
-    if pixels.shape[:2] != (n_rows, n_cols):
+    min_rows = max_rows if fast and max_rows and n_rows >= 2 * max_rows else 0
+    pixels, is_color = _decode_pixels(data, want_rgb=want_rgb, fast=fast, min_rows=min_rows)
+    row_scale = n_rows / pixels.shape[0]
+    if (pixels.shape[:2] != (n_rows, n_cols) and not min_rows) or abs(
+            n_cols / pixels.shape[1] - row_scale) > 0.5:
         raise CorruptImageError(f"decoded size {pixels.shape[:2]} differs from the header's "
                                 f"{(n_rows, n_cols)}")
     if pixels.ndim == 3:
-        return Decoded(_luma_of(pixels), fmt, len(data), orientation, True, data, pixels)
-    return Decoded(pixels, fmt, len(data), orientation, is_color, data)
+        return Decoded(_luma_of(pixels), fmt, len(data), orientation, True, row_scale, data,
+                       pixels)
+    return Decoded(pixels, fmt, len(data), orientation, is_color, row_scale, data)

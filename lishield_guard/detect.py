@@ -4,18 +4,21 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig, default_config
 from lishield_guard.decode import Decoded, decode
+from lishield_guard.fold import candidate_periods, fold_match
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles
+from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
-__all__ = ["detect", "detect_decoded"]
+__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 
@@ -69,8 +72,10 @@ def detect(source, config: AppConfig | DetectorConfig | None = None) -> Verdict:
     """
     cfg = _resolve(config)
     timer = _Timer()
+    det = cfg.detector
     with timer("decode"):
-        decoded = decode(source, limits=cfg.limits)
+        decoded = decode(source, limits=cfg.limits, fast=det.fast_decode,
+                         max_rows=det.max_decode_rows if det.profile == "default" else 0)
     return detect_decoded(decoded, cfg, _timer=timer)
 
 
@@ -112,18 +117,19 @@ def _detect_paper(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict
                    profile="paper", score=float(out["matches"] >= out["required"]))
 
 
-def _band_cpr(config: AppConfig) -> tuple[float, float]:
+def _band_cpr(config: AppConfig, row_scale: float = 1.0) -> tuple[float, float]:
     det = config.detector
     s_lo, s_hi = scale_range_cpr_per_hz(det)
     freqs = [f for p in config.policies for s in p.specs for f in s.all_freqs_hz]
     if not freqs:
         return 0.0, 0.0
-    return min(freqs) * s_lo, min(0.5, max(freqs) * s_hi)
+    return min(freqs) * s_lo * row_scale, min(0.5, max(freqs) * s_hi * row_scale)
 
 
-def _analyse(plane: np.ndarray, axis: int, config: AppConfig) -> PlaneAnalysis:
+def _analyse(plane: np.ndarray, axis: int, config: AppConfig,
+             row_scale: float = 1.0) -> PlaneAnalysis:
     det = config.detector
-    lo, hi = _band_cpr(config)
+    lo, hi = _band_cpr(config, row_scale)
     profiles = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis)
     n_rows = profiles.shape[1]
     sigma = min(0.5 / lo if lo > 0 else n_rows, n_rows / 6.0)
@@ -131,66 +137,200 @@ def _analyse(plane: np.ndarray, axis: int, config: AppConfig) -> PlaneAnalysis:
                             trend_sigma_rows=sigma, false_prob=det.peak_false_prob)
 
 
-def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
+AXIS_NAMES = {0: "rows", 1: "columns"}
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """Everything the default profile decides on, computed once per image.
+
+    Attributes
+    ----------
+    axes : dict
+        ``"rows"``/``"columns"`` -> plane name (``"L"`` luma, ``"R"``, ``"G"``, ``"B"``) ->
+        `PlaneAnalysis`. Planes that were not needed may be absent.
+    row_scale : float
+        Stored rows per analysed row (DCT-domain downscaling of large JPEGs).
+    orientation : int
+        EXIF orientation tag of the source.
+    format : str
+        Container format.
+    skipped : tuple of str
+        Work not done and why.
+    """
+
+    axes: dict
+    row_scale: float = 1.0
+    orientation: int = 1
+    format: str = "array"
+    skipped: tuple[str, ...] = ()
+
+    def with_false_prob(self, false_prob: float) -> Evidence:
+        """The same evidence judged at another per-frame false-pass probability."""
+        axes = {a: {k: pa.with_false_prob(false_prob) for k, pa in planes.items()}
+                for a, planes in self.axes.items()}
+        return Evidence(axes, self.row_scale, self.orientation, self.format, self.skipped)
+
+
+def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
+    """Detector settings whose scale range accounts for decoding at 1/row_scale."""
+    if row_scale == 1.0:
+        return det
+    return det.replace(min_row_rate_hz=det.min_row_rate_hz / row_scale,
+                       max_row_rate_hz=det.max_row_rate_hz / row_scale)
+
+
+def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
+                 ) -> list[tuple[str, SpecMatch]]:
+    """Match every spec whose planes are available on one axis: tone tracks, then folding."""
+    out = []
+    periods: list[float] | None = None
+    for pid, spec in specs:
+        if spec.is_rgb:
+            chans = {c: planes.get(c, planes.get("L")) for c in spec.channel_names}
+        else:
+            chans = {"W": planes.get("L")}
+        if any(v is None for v in chans.values()):
+            continue
+        m = match_spec(spec, chans, det)
+        if not m.protected:
+            if periods is None:
+                periods = _periods(planes["L"], specs, det)
+            m = _fold_decision(m, spec, chans, periods, det)
+        out.append((pid, m))
+    return out
+
+
+def _period_range_rows(spec: BarcodeSpec, det: DetectorConfig) -> tuple[float, float]:
+    """Pattern periods M/f_B in rows that the scale range and f_B range allow."""
+    s_lo, s_hi = scale_range_cpr_per_hz(det)
+    f_b_min = spec.n_tones * 80.0
+    return spec.n_tones / (spec.f1_hz * s_hi), spec.n_tones / (f_b_min * s_lo)
+
+
+def _periods(luma: PlaneAnalysis, specs, det: DetectorConfig) -> list[float]:
+    if luma.common is None or not specs:
+        return []
+    ranges = [_period_range_rows(s, det) for _, s in specs]
+    lo = min(r[0] for r in ranges)
+    hi = max(r[1] for r in ranges)
+    return candidate_periods(luma.common.astype(np.float64), min_rows=max(lo, 4.0),
+                             max_rows=hi)
+
+
+def _fold_decision(m: SpecMatch, spec: BarcodeSpec, chans: dict[str, PlaneAnalysis],
+                   periods: list[float], det: DetectorConfig) -> SpecMatch:
+    """Upgrade a tone-track miss to protected when the folded pattern fits the template."""
+    if not periods or any(pa.common is None for pa in chans.values()):
+        return m
+    fits = []
+    for c, pa in chans.items():
+        fm = fold_match(pa.common.astype(np.float64), pa.noise_var, spec, c,
+                        period_range_rows=_period_range_rows(spec, det), periods=periods)
+        if fm is None:
+            return m
+        fits.append(fm)
+    rho = float(np.mean([f.rho for f in fits]))
+    snr = float(min(f.fold_snr for f in fits))
+    info = {**fits[0].to_dict(), "rho": round(rho, 4), "fold_snr": round(snr, 2),
+            "channels": len(fits)}
+    if rho >= det.fold_min_rho and snr >= det.fold_min_snr:
+        reason = (f"the stripes repeat every {fits[0].period_rows:.1f} rows and the folded "
+                  f"pattern fits {spec.name} (rho={rho:.2f}, {fits[0].cycles_f1:.2f} cycles of "
+                  f"f_1 per slot)")
+        return replace(m, protected=True, reason=reason, fold=info)
+    return replace(m, fold=info)
+
+
+def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
+    """Every plane on every configured axis (for calibration sweeps; `detect` is lazier)."""
     det = config.detector
+    axes = {}
+    skipped = []
+    has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
+    for axis in (0, 1) if det.orientations == "both" else (0,):
+        if decoded.luma.shape[axis] < MIN_ROWS:
+            skipped.append(f"{AXIS_NAMES[axis]}: only {decoded.luma.shape[axis]} lines")
+            continue
+        planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
+        if has_rgb and decoded.is_color:
+            rgb = decoded.rgb()
+            planes.update({c: _analyse(rgb[:, :, i], axis, config, decoded.row_scale)
+                           for i, c in enumerate("RGB")})
+        axes[AXIS_NAMES[axis]] = planes
+    return Evidence(axes, decoded.row_scale, decoded.orientation, decoded.format,
+                    tuple(skipped))
+
+
+def decide(evidence: Evidence, config: AppConfig) -> Verdict:
+    """The default profile's verdict from precomputed evidence (no decoding, no profiling)."""
+    det = _scaled(config.detector, evidence.row_scale)
+    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    candidates = []
+    for axis_name, planes in evidence.axes.items():
+        candidates += [(axis_name, pid, m) for pid, m in _decide_axis(planes, specs, det)]
+    return _verdict(candidates, config, list(evidence.skipped), {}, evidence.orientation,
+                    evidence.format)
+
+
+def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
+             orientation: int, fmt: str) -> Verdict:
+    if not candidates:
+        return Verdict(False, None, 0, config.detector.min_tones,
+                       evidence={"reason": "nothing analysable", "candidates": []},
+                       skipped=tuple(skipped), timings_ms=timings, profile="default")
+    axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
+    tried = sorted(({"axis": a, "policy": p, **c.to_dict()} for a, p, c in candidates),
+                   key=lambda d: (-d["n_matched"], -d["purity"]))
+    evidence = {"reason": m.reason, "axis": axis, "best": m.to_dict(), "candidates": tried[:6],
+                "orientation_exif": orientation, "format": fmt}
+    return Verdict(protected=m.protected, policy=pid if m.protected else None,
+                   matches=m.n_matched, required=m.required, evidence=evidence,
+                   skipped=tuple(skipped), timings_ms=timings, profile="default",
+                   score=m.score)
+
+
+def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
+    det = _scaled(config.detector, decoded.row_scale)
     skipped: list[str] = []
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     mono = [(pid, s) for pid, s in specs if not s.is_rgb]
     rgb = [(pid, s) for pid, s in specs if s.is_rgb]
     axes = (0, 1) if det.orientations == "both" else (0,)
+    if decoded.row_scale > 1:
+        skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
+                       f"DCT domain (stripes need rows, not pixels)")
     if decoded.orientation in (5, 6, 7, 8) and det.orientations == "both":
         skipped.append(f"EXIF orientation {decoded.orientation}: stored rows are sensor rows, "
                        f"analysed first")
-    best: tuple[str, SpecMatch] | None = None
-    tried: list[dict] = []
-    axis_name = {0: "rows", 1: "columns"}
+    candidates: list[tuple[str, str, SpecMatch]] = []
     for axis in axes:
-        n_rows = decoded.luma.shape[axis]
-        if n_rows < MIN_ROWS:
-            skipped.append(f"{axis_name[axis]}: only {n_rows} < {MIN_ROWS} lines")
+        name = AXIS_NAMES[axis]
+        if decoded.luma.shape[axis] < MIN_ROWS:
+            skipped.append(f"{name}: only {decoded.luma.shape[axis]} < {MIN_ROWS} lines")
             continue
         with timer("profile_luma"):
-            luma = _analyse(decoded.luma, axis, config)
-        skipped.extend(f"{axis_name[axis]}: {s}" for s in luma.skipped)
-        candidates: list[tuple[str, SpecMatch]] = []
+            planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
+        skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
         with timer("match"):
-            for pid, spec in mono:
-                candidates.append((pid, match_spec(spec, {"W": luma}, det)))
-        if rgb and not any(m.protected for _, m in candidates):
-            if luma.max_significant_fraction < det.min_occupancy:
-                skipped.append(f"{axis_name[axis]}: colour planes (no significant stripes in "
-                               f"luma)")
+            found = _decide_axis(planes, mono, det)
+        if rgb and not any(m.protected for _, m in found):
+            if planes["L"].max_significant_fraction < det.min_occupancy:
+                skipped.append(f"{name}: colour planes (no significant stripes in luma)")
             else:
-                with timer("profile_color"):
-                    if decoded.is_color:
-                        planes_rgb = decoded.rgb()
-                        chans = {c: _analyse(planes_rgb[:, :, i], axis, config)
-                                 for i, c in enumerate("RGB")}
-                    else:
-                        chans = {c: luma for c in "RGB"}
+                if decoded.is_color:
+                    with timer("profile_color"):
+                        colour = decoded.rgb()
+                        planes.update({c: _analyse(colour[:, :, i], axis, config,
+                                                   decoded.row_scale)
+                                       for i, c in enumerate("RGB")})
                 with timer("match"):
-                    for pid, spec in rgb:
-                        candidates.append((pid, match_spec(spec, chans, det)))
+                    found += _decide_axis(planes, rgb, det)
         elif rgb:
-            skipped.append(f"{axis_name[axis]}: colour planes (luma verdict certain)")
-        for pid, m in candidates:
-            tried.append({"axis": axis_name[axis], "policy": pid, **m.to_dict()})
-            key = (m.protected, m.score, m.n_matched)
-            if best is None or key > (best[1].protected, best[1].score, best[1].n_matched):
-                best = (pid, m)
-        if best is not None and best[1].protected:
+            skipped.append(f"{name}: colour planes (luma verdict certain)")
+        candidates += [(name, pid, m) for pid, m in found]
+        if any(m.protected for _, m in found):
             if axis == 0 and len(axes) > 1:
                 skipped.append("columns: verdict certain from rows")
             break
-    if best is None:
-        return Verdict(False, None, 0, config.detector.min_tones,
-                       evidence={"reason": "nothing analysable", "candidates": []},
-                       skipped=tuple(skipped), timings_ms=timer.ms, profile="default")
-    pid, m = best
-    tried.sort(key=lambda d: (-d["n_matched"], -d["purity"]))
-    evidence = {"reason": m.reason, "best": m.to_dict(), "candidates": tried[:6],
-                "orientation_exif": decoded.orientation, "format": decoded.format}
-    return Verdict(protected=m.protected, policy=pid if m.protected else None,
-                   matches=m.n_matched, required=m.required, evidence=evidence,
-                   skipped=tuple(skipped), timings_ms=timer.ms, profile="default",
-                   score=m.score)
+    return _verdict(candidates, config, skipped, timer.ms, decoded.orientation, decoded.format)

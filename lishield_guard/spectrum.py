@@ -24,7 +24,7 @@ x = m ((p / n_bins)^(-1/m) - 1), for a per-frame false-pass probability p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
@@ -53,35 +53,65 @@ class Track:
         Frequencies this window can estimate (>= MIN_CYCLES per frame), cycles per row.
     freq_cpr : ndarray of shape (n_frames,)
         Interpolated frequency of the strongest spectral peak of each frame, cycles per row.
-    significant : ndarray of bool, same shape
-        The peak passed the noise test and is not on the edge of the searched range.
+    snr : ndarray, same shape
+        Peak power over the residual noise power at that frequency (unitless; 0 where the
+        peak is unusable: on the searched range's edge, or no power at all).
+    threshold : float
+        The snr a frame must exceed to be significant (see `peak_threshold`).
+    n_bins : float
+        Independent bins searched per frame (for recomputing the threshold).
+    n_blocks : int
+        Column blocks behind the noise estimate.
     """
 
     window_rows: int
     lo_cpr: float
     hi_cpr: float
     freq_cpr: np.ndarray
-    significant: np.ndarray
+    snr: np.ndarray
+    threshold: float
+    n_bins: float
+    n_blocks: int
+
+    @property
+    def significant(self) -> np.ndarray:
+        """Frames whose peak passes the significance test, bool of shape (n_frames,)."""
+        return self.snr > self.threshold
 
     @property
     def significant_fraction(self) -> float:
         """Fraction of frames whose peak is significant (unitless)."""
-        return float(self.significant.mean()) if self.significant.size else 0.0
+        return float(self.significant.mean()) if self.snr.size else 0.0
+
+    def with_false_prob(self, false_prob: float) -> Track:
+        """The same track judged at another per-frame false-pass probability."""
+        thr = peak_threshold(false_prob, n_bins=self.n_bins, n_blocks=self.n_blocks)
+        return replace(self, threshold=thr)
 
 
 @dataclass(frozen=True)
 class PlaneAnalysis:
-    """Frequency tracks of one plane along one axis, plus what was skipped."""
+    """Frequency tracks of one plane along one axis, plus what was skipped.
+
+    ``common`` is the common log-contrast row signal (n_rows,) and ``noise_var`` the variance
+    of its noise per row (from the inter-block residual), used by pattern folding.
+    """
 
     n_rows: int
     n_blocks_used: int
     tracks: tuple[Track, ...]
     skipped: tuple[str, ...]
+    common: np.ndarray | None = None
+    noise_var: float = 0.0
 
     @property
     def max_significant_fraction(self) -> float:
         """Largest significant fraction over all tracks (0 when there are none)."""
         return max((t.significant_fraction for t in self.tracks), default=0.0)
+
+    def with_false_prob(self, false_prob: float) -> PlaneAnalysis:
+        """The same analysis judged at another per-frame false-pass probability."""
+        return replace(self, tracks=tuple(t.with_false_prob(false_prob) for t in self.tracks))
 
 
 def _usable_blocks(profiles: np.ndarray, full_scale: float) -> tuple[np.ndarray, list[str]]:
@@ -138,7 +168,9 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         if t_lo >= hi:
             continue
         tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale))
-    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped))
+    noise_var = float((resid ** 2).sum() * noise_scale / n_rows)
+    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32),
+                         noise_var)
 
 
 def _frames(x: np.ndarray, w: int, hop: int) -> np.ndarray:
@@ -187,8 +219,10 @@ def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
         delta = np.where(den < 0, 0.5 * (a - c) / np.where(den < 0, den, -1.0), 0.0)
     delta = np.clip(delta, -0.5, 0.5)
     freq = (k + delta) / nfft
-    thr = peak_threshold(false_prob, n_bins=(k_hi - k_lo) / PAD_FACTOR, n_blocks=resid.shape[0])
-    sig = (peak > thr * np.maximum(noise[rows, k], 1e-300)) & ~edge & (peak > 0)
-    return Track(w, float(lo), float(hi), freq, sig)
+    n_bins = (k_hi - k_lo) / PAD_FACTOR
+    nb = resid.shape[0]
+    snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(noise[rows, k], 1e-300))
+    thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=nb)
+    return Track(w, float(lo), float(hi), freq, snr, thr, float(n_bins), int(nb))
 
 

@@ -1,0 +1,626 @@
+"""False-alarm calibration: sweep decision parameters, bound the false-alarm rate, pick a setting.
+
+Pure core of ``lishield-guard calibrate`` (no file I/O; the command does that).
+
+Flow
+----
+1. Per image, once (the expensive part): `image_record` decodes and profiles the image
+   (`collect_evidence`) and, for the paper profile, caches `block_peaks_hz` per (n_b, M_p).
+2. Per image and per *match combo* (peak_false_prob, tone_rel_tol, min_occupancy,
+   max_occupancy), `candidate_table` runs the tone matcher on every (axis, spec) candidate and
+   keeps (n_matched, purity, switches, colour channels hit). The remaining decision parameters
+   (min_purity, min_tones, min_tones_rgb) only gate the final verdict and never move the fitted
+   scale, so `default_scores` applies them to these tables in microseconds. `paper_scores`
+   sweeps T_b and gamma over the cached peak frequencies.
+3. `summarise` turns per-image verdicts into rates: image-level false-alarm rate on the clean set
+   with its exact one-sided Clopper-Pearson 95 % upper bound, false candidate matches (paper
+   Fig. 21 analogue), detection overall and per group of positives.
+4. `select_setting`: highest detection among settings whose FAR upper bound <= target.
+
+Bounds
+------
+``far_upper`` is the exact *one-sided* 95 % upper bound: the p with P(Bin(n, p) <= k) = 0.05,
+i.e. ``beta.ppf(0.95, k + 1, n - k)`` (= the upper end of a two-sided 90 % Clopper-Pearson
+interval). With k = 0 it is 1 - 0.05^(1/n), so showing FAR <= t needs
+n >= ln(0.05) / ln(1 - t) clean images with no false alarm: 2995 for t = 1e-3 (n = 2994 gives
+1.0003e-3). The two-sided 95 % interval (``level=0.95`` in `lishield_guard.stats`) is also
+reported; its upper end needs n >= ln(0.025) / ln(1 - t) = 3687 for t = 1e-3.
+
+Null model (default profile)
+----------------------------
+Consider one track (window length w, F frames) of one plane whose frames each carry, with
+probability q, a significant peak at a frequency uniform in log over the track band of log-width
+B = ln(hi / lo). A tone window at a fitted scale has log-width a = 2 ln(1 + tol), so a frame
+lands in a given tone window with probability pi = q a / B, and elsewhere-significant with
+probability rho = q (1 - M a / B) for a spec of M tones. For F large and pi small the counts
+are independent Poisson: c_j ~ Poi(F pi) per tone, o ~ Poi(F rho) outside. A tone *hits* when
+k_min <= c_j <= max_occupancy F, k_min = max(ceil(min_occupancy F), 2). A chance candidate at
+one scale needs (i) >= m hit tones (m = min_tones) and (ii) purity
+sum_hit c_j / (sum_j c_j + o) >= min_purity. Its probability is
+
+    P1 = sum over (c_1..c_M) with >= m hits of prod_j Poi(c_j; F pi)
+         x PoiCDF( floor(sum_hit c_j / min_purity - sum_j c_j); F rho ).
+
+The matcher maximises over log-scales (a shift range of width D = min(ln(s_hi/s_lo),
+B - ln(f_max/f_min) - a)), tracks and specs; shifts farther apart than a see disjoint frames, so
+there are about N_s = D / a + 1 independent scales and the expected number of chance matches of
+an image is E = sum over axes, tracks and mono specs of N_s P1 (a union bound; symbol-timing
+``switches`` are ignored, which makes it conservative). The image false-alarm probability is
+about 1 - exp(-E). For pure noise q = peak_false_prob; `null_model_far` also evaluates it with
+each clean image's own measured significant fractions q_t, which is what the report compares
+with the measured clean-set rate.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
+from lishield_guard.config import AppConfig, DetectorConfig
+from lishield_guard.decode import decode
+from lishield_guard.detect import collect_evidence
+from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
+
+__all__ = [
+    "DefaultGrid",
+    "PaperGrid",
+    "Setting",
+    "candidate_table",
+    "default_scores",
+    "far_upper_bound",
+    "group_labels",
+    "image_record",
+    "images_needed",
+    "null_model_far",
+    "paper_scores",
+    "select_setting",
+    "summarise",
+]
+
+CONFIDENCE = 0.95
+# candidate table columns
+N_MATCHED, PURITY, SWITCHES, CH_HIT, IS_RGB, VALID = range(6)
+AXES = ("rows", "columns")
+
+
+# ----------------------------------------------------------------------------- bounds
+
+
+def far_upper_bound(k: int, n: int, confidence: float = CONFIDENCE) -> float:
+    """Exact one-sided Clopper-Pearson upper bound of a binomial proportion.
+
+    Parameters
+    ----------
+    k, n : int
+        False alarms and clean images, 0 <= k <= n.
+    confidence : float, optional
+        One-sided confidence, unitless. Default 0.95.
+
+    Returns
+    -------
+    float
+        p_hi with P(Bin(n, p_hi) <= k) = 1 - confidence; 1 when n = 0 or k = n.
+
+    Examples
+    --------
+    >>> round(far_upper_bound(0, 10), 4)
+    0.2589
+    """
+    from scipy.stats import beta
+
+    k, n = int(k), int(n)
+    if not 0 <= k <= n:
+        if n == 0 and k == 0:
+            return 1.0
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if n == 0 or k == n:
+        return 1.0
+    return float(beta.ppf(confidence, k + 1, n - k))
+
+
+def two_sided_upper(k: int, n: int, level: float = CONFIDENCE) -> float:
+    """Upper end of the two-sided Clopper-Pearson interval (`lishield_guard.stats`)."""
+    from lishield_guard.stats import clopper_pearson
+
+    return clopper_pearson(k, n, level)[1]
+
+
+def images_needed(target_far: float, confidence: float = CONFIDENCE) -> int:
+    """Clean images with zero false alarms needed for a one-sided bound <= target_far.
+
+    Examples
+    --------
+    >>> images_needed(1e-3)
+    2995
+    """
+    if not 0 < target_far < 1:
+        raise ValueError(f"need 0 < target_far < 1, got {target_far!r}")
+    n = math.ceil(math.log(1 - confidence) / math.log1p(-target_far))
+    while far_upper_bound(0, n, confidence) > target_far:  # guard against round-off
+        n += 1
+    return n
+
+
+# ----------------------------------------------------------------------------- grids
+
+
+@dataclass(frozen=True)
+class DefaultGrid:
+    """Values swept for the default profile (all unitless)."""
+
+    peak_false_prob: tuple[float, ...] = (1e-2, 1e-3, 1e-4, 1e-5)
+    tone_rel_tol: tuple[float, ...] = (0.03, 0.04, 0.05)
+    min_occupancy: tuple[float, ...] = (0.04, 0.08)
+    max_occupancy: tuple[float, ...] = (0.6, 0.8)
+    min_purity: tuple[float, ...] = (0.3, 0.5, 0.7)
+    min_tones: tuple[int, ...] = (2, 3)
+    min_tones_rgb: tuple[int, ...] = (3,)
+
+    def match_combos(self) -> list[tuple[float, float, float, float]]:
+        """(peak_false_prob, tone_rel_tol, min_occupancy, max_occupancy): each needs matching."""
+        return list(itertools.product(self.peak_false_prob, self.tone_rel_tol,
+                                      self.min_occupancy, self.max_occupancy))
+
+    def gate_combos(self) -> list[tuple[float, int, int]]:
+        """(min_purity, min_tones, min_tones_rgb): applied to candidate tables afterwards."""
+        return list(itertools.product(self.min_purity, self.min_tones, self.min_tones_rgb))
+
+
+@dataclass(frozen=True)
+class PaperGrid:
+    """Values swept for the paper profile (Algorithm 1)."""
+
+    n_b: tuple[int, ...] = (2, 4)
+    max_peaks: tuple[int, ...] = (2, 3)
+    ratio_tol: tuple[float, ...] = (0.01, 0.02, 0.03, 0.05)
+    gamma: tuple[float, ...] = (0.1, 0.3, 0.5, 1.0)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One swept point: profile plus the DetectorConfig fields it changes."""
+
+    profile: str
+    params: tuple[tuple[str, float], ...]
+
+    @property
+    def as_dict(self) -> dict:
+        """The changed fields."""
+        return dict(self.params)
+
+    def label(self) -> str:
+        """Short human-readable form."""
+        return f"{self.profile}: " + ", ".join(f"{k}={v:g}" for k, v in self.params)
+
+    def apply(self, det: DetectorConfig) -> DetectorConfig:
+        """``det`` with this setting's fields (paper n_b sets both block counts)."""
+        changes = dict(self.params)
+        if "n_b" in changes:
+            n_b = int(changes.pop("n_b"))
+            changes["n_block_rows"] = changes["n_block_cols"] = n_b
+        for k in ("max_peaks", "min_tones", "min_tones_rgb"):
+            if k in changes:
+                changes[k] = int(changes[k])
+        return det.replace(profile=self.profile, **changes)
+
+
+# ----------------------------------------------------------------------------- per image
+
+
+def _specs(config: AppConfig) -> list:
+    return [s for p in config.policies for s in p.specs]
+
+
+def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
+    # as detect.decide: the scale range accounts for DCT-domain downscaling
+    if row_scale == 1.0:
+        return det
+    return det.replace(min_row_rate_hz=det.min_row_rate_hz / row_scale,
+                       max_row_rate_hz=det.max_row_rate_hz / row_scale)
+
+
+def _max_sig_frames(planes: dict) -> int:
+    return max((int(t.significant.sum()) for pa in planes.values() for t in pa.tracks),
+               default=0)
+
+
+def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Match results of every (axis, spec) candidate for every match combo of ``grid``.
+
+    Parameters
+    ----------
+    evidence : Evidence
+        From `collect_evidence` (any peak_false_prob; it is re-judged per combo).
+    config : AppConfig
+        Base config (policies, fixed detector fields).
+    grid : DefaultGrid
+        Swept values.
+
+    Returns
+    -------
+    table : ndarray of shape (n_combos, 2 * n_specs, 6), float32
+        Columns ``n_matched, purity, switches, colour channels hit, is_rgb, valid``; rows of
+        axes that were not analysed are all zero.
+    match_ms : ndarray of shape (n_combos,)
+        Matching wall time per combo, in milliseconds.
+
+    Notes
+    -----
+    Mirrors `lishield_guard.detect.decide`: a candidate is protected when n_matched >= need,
+    purity >= min_purity, switches >= 1 and, for RGB specs, >= 2 channels are hit.
+    A plane whose tracks hold fewer than 2 significant frames cannot hit any tone
+    (`barcode.MIN_FRAMES`), so its candidates are recorded as 0 without running the matcher.
+    """
+    specs = _specs(config)
+    combos = grid.match_combos()
+    table = np.zeros((len(combos), len(AXES) * len(specs), 6), dtype=np.float32)
+    match_ms = np.zeros(len(combos))
+    by_fp = {}
+    for ci, (fp, tol, occ_lo, occ_hi) in enumerate(combos):
+        t0 = time.perf_counter()
+        if fp not in by_fp:
+            by_fp[fp] = evidence.with_false_prob(fp)
+        ev = by_fp[fp]
+        det = _scaled(config.detector.replace(peak_false_prob=fp, tone_rel_tol=tol,
+                                              min_occupancy=occ_lo, max_occupancy=occ_hi),
+                      ev.row_scale)
+        for ai, axis in enumerate(AXES):
+            planes = ev.axes.get(axis)
+            if not planes:
+                continue
+            quiet = _max_sig_frames(planes) < 2
+            for si, spec in enumerate(specs):
+                if spec.is_rgb:
+                    chans = {c: planes.get(c, planes.get("L")) for c in spec.channel_names}
+                else:
+                    chans = {"W": planes.get("L")}
+                if any(v is None for v in chans.values()):
+                    continue
+                row = table[ci, ai * len(specs) + si]
+                row[IS_RGB], row[VALID] = float(spec.is_rgb), 1.0
+                if quiet:
+                    continue
+                m = match_spec(spec, chans, det)
+                row[N_MATCHED], row[PURITY], row[SWITCHES] = m.n_matched, m.purity, m.switches
+                row[CH_HIT] = sum(1 for v in m.matched.values() if v)
+        match_ms[ci] = (time.perf_counter() - t0) * 1e3
+    return table, match_ms
+
+
+def paper_peaks(decoded, config: AppConfig, grid: PaperGrid) -> tuple[dict, dict]:
+    """Pooled `block_peaks_hz` per (n_b, M_p) and the time each took (ms)."""
+    if decoded.is_color:
+        rgb = decoded.rgb()
+        planes = [rgb[:, :, i] for i in range(3)]
+    else:
+        planes = [decoded.luma]
+    peaks, ms = {}, {}
+    for n_b, m_p in itertools.product(grid.n_b, grid.max_peaks):
+        t0 = time.perf_counter()
+        det = config.detector.replace(profile="paper", n_block_rows=n_b, n_block_cols=n_b,
+                                      max_peaks=m_p)
+        found = [block_peaks_hz(p, det) for p in planes]
+        peaks[(n_b, m_p)] = np.unique(np.concatenate(found)) if found else np.zeros(0)
+        ms[(n_b, m_p)] = (time.perf_counter() - t0) * 1e3
+    return peaks, ms
+
+
+def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = None) -> dict:
+    """The expensive per-image part: default-profile Evidence and paper peak frequencies.
+
+    Returns
+    -------
+    dict
+        ``evidence`` (Evidence), ``evidence_ms``, ``paper_peaks`` {(n_b, M_p): Hz array},
+        ``paper_ms`` {(n_b, M_p): ms}, ``paper_decode_ms``.
+    """
+    det = config.detector
+    t0 = time.perf_counter()
+    decoded = decode(source, limits=config.limits, fast=det.fast_decode,
+                     max_rows=det.max_decode_rows)
+    evidence = collect_evidence(decoded, config)
+    rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3}
+    if paper_grid is not None:
+        t0 = time.perf_counter()
+        full = decode(source, limits=config.limits, fast=det.fast_decode, max_rows=0)
+        rec["paper_decode_ms"] = (time.perf_counter() - t0) * 1e3
+        rec["paper_peaks"], rec["paper_ms"] = paper_peaks(full, config, paper_grid)
+    return rec
+
+
+# ----------------------------------------------------------------------------- sweeps
+
+
+def default_scores(tables: np.ndarray, grid: DefaultGrid
+                   ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
+    """Verdicts of every default-profile setting from stacked candidate tables.
+
+    Parameters
+    ----------
+    tables : ndarray of shape (n_images, n_combos, n_candidates, 6)
+        Stacked `candidate_table` outputs.
+    grid : DefaultGrid
+        The grid the tables were computed for.
+
+    Returns
+    -------
+    settings : list of Setting
+    protected : ndarray of bool, shape (n_settings, n_images)
+    cand_hits : ndarray of shape (n_settings, n_images)
+        Candidates with >= the required tones (any purity), per image.
+    cand_total : ndarray of shape (n_images,)
+        Candidates analysed per image.
+    """
+    n_img = tables.shape[0]
+    settings, prot, hits = [], [], []
+    valid = tables[..., VALID] > 0
+    cand_total = valid[:, 0, :].sum(axis=1)
+    for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):
+        t = tables[:, ci]
+        n, pur, sw, ch, rgb = (t[..., N_MATCHED], t[..., PURITY], t[..., SWITCHES],
+                               t[..., CH_HIT], t[..., IS_RGB] > 0)
+        for mp, mt, mt_rgb in grid.gate_combos():
+            need = np.where(rgb, mt_rgb, mt)
+            enough = (n >= need) & valid[:, ci]
+            ok = enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2))
+            settings.append(Setting("default", (
+                ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
+                ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
+                ("min_tones_rgb", mt_rgb))))
+            prot.append(ok.any(axis=1))
+            hits.append(enough.sum(axis=1))
+    if not settings:
+        return [], np.zeros((0, n_img), bool), np.zeros((0, n_img)), cand_total
+    return settings, np.array(prot), np.array(hits, dtype=float), cand_total
+
+
+def paper_scores(peaks: list[dict], config: AppConfig, grid: PaperGrid
+                 ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
+    """Verdicts of every paper-profile setting from cached per-image peak frequencies.
+
+    Returns the same four items as `default_scores`; ``cand_hits`` counts false ratio matches
+    m_b (summed over specs) and ``cand_total`` the tested ratios (pairs x specs) per image.
+    """
+    specs = _specs(config)
+    n_img = len(peaks)
+    settings, prot, hits = [], [], []
+    total = np.zeros((len(grid.n_b) * len(grid.max_peaks), n_img))
+    for bi, (n_b, m_p) in enumerate(itertools.product(grid.n_b, grid.max_peaks)):
+        f_list = [p[(n_b, m_p)] for p in peaks]
+        n_pairs = np.array([f.size * (f.size - 1) / 2 for f in f_list])
+        total[bi] = n_pairs * len(specs)
+        for tol in grid.ratio_tol:
+            m_b = np.array([[count_ratio_matches(f, s.ratio_values(), tol) for s in specs]
+                            for f in f_list]).reshape(n_img, len(specs))
+            for g in grid.gamma:
+                det = config.detector.replace(gamma=g)
+                need = np.array([required_matches(s, det) for s in specs])
+                settings.append(Setting("paper", (("n_b", n_b), ("max_peaks", m_p),
+                                                  ("ratio_tol", tol), ("gamma", g))))
+                prot.append((m_b >= need[None, :]).any(axis=1))
+                hits.append(m_b.sum(axis=1).astype(float))
+    # cand_total differs per (n_b, M_p); return it per setting
+    per_setting_total = np.repeat(total, len(grid.ratio_tol) * len(grid.gamma), axis=0)
+    return settings, np.array(prot), np.array(hits), per_setting_total
+
+
+# ----------------------------------------------------------------------------- summaries
+
+
+def _bin(value, edges: tuple[float, ...], fmt: str) -> str:
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        if lo <= value < hi:
+            return fmt.format(lo=lo, hi=hi)
+    return fmt.format(lo=edges[-2], hi=edges[-1])
+
+
+def group_labels(row: dict) -> dict[str, str]:
+    """Group of a positive (synth manifest row) under each per-kind breakdown."""
+    g = {}
+    chans = row.get("channels")
+    if chans is not None:
+        g["channels"] = "RGB" if len(chans) > 1 else "mono"
+    if row.get("preset") is not None:
+        g["preset"] = str(row["preset"])
+    if row.get("attack") is not None:
+        g["attack"] = "attack" if row["attack"] else "no attack"
+    amb = row.get("ambient_ratio")
+    if amb is not None:
+        g["ambient"] = "0" if amb == 0 else _bin(float(amb), (0, 0.5, 2, math.inf),
+                                                  "({lo:g},{hi:g}]")
+    cov = row.get("coverage")
+    if isinstance(cov, dict):
+        cov = cov.get("fraction")
+    if cov is not None:
+        g["coverage"] = "full" if cov >= 0.999 else _bin(float(cov), (0, 0.5, 1.0),
+                                                          "[{lo:g},{hi:g})")
+    ds = row.get("downscale")
+    if ds is not None:
+        g["downscale"] = "1" if ds <= 1.0 else _bin(float(ds), (1, 2, math.inf),
+                                                     "({lo:g},{hi:g}]")
+    if row.get("rotation_deg") is not None:
+        g["rotation"] = f"{int(row['rotation_deg'])} deg"
+    if row.get("kind") is not None:
+        g["kind"] = str(row["kind"])
+    return g
+
+
+@dataclass
+class Summary:
+    """Rates of one setting."""
+
+    setting: Setting
+    n_clean: int
+    false_alarms: int
+    far: float
+    far_upper: float
+    far_upper_two_sided: float
+    false_match_fraction: float
+    n_pos: int
+    detected: int
+    detection: float
+    time_ms_per_image: float
+    per_group: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form."""
+        d = asdict(self)
+        d["setting"] = {"profile": self.setting.profile, **self.setting.as_dict}
+        d["label"] = self.setting.label()
+        return d
+
+
+def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndarray, *,
+              clean_hits: np.ndarray, clean_cands, time_ms: np.ndarray,
+              pos_groups: list[dict[str, str]] | None = None) -> list[Summary]:
+    """Rates, bounds and per-group detection of every setting.
+
+    Parameters
+    ----------
+    settings : list of Setting
+    clean_prot, pos_prot : ndarray of bool, shape (n_settings, n_clean / n_pos)
+        Verdicts on clean images and positives.
+    clean_hits : ndarray of shape (n_settings, n_clean)
+        False candidate (or ratio) matches per clean image.
+    clean_cands : ndarray of shape (n_clean,) or (n_settings, n_clean)
+        Candidates (or ratios) tested per clean image.
+    time_ms : ndarray of shape (n_settings,)
+        Mean decision time per image for each setting, in milliseconds.
+    pos_groups : list of dict, optional
+        `group_labels` of each positive.
+    """
+    cands = np.asarray(clean_cands, dtype=float)
+    out = []
+    n_clean = clean_prot.shape[1]
+    n_pos = pos_prot.shape[1]
+    groups: dict[tuple[str, str], np.ndarray] = {}
+    for i, g in enumerate(pos_groups or []):
+        for key, val in g.items():
+            groups.setdefault((key, val), []).append(i)
+    for si, s in enumerate(settings):
+        k = int(clean_prot[si].sum())
+        denom = float(cands[si].sum() if cands.ndim == 2 else cands.sum())
+        det = int(pos_prot[si].sum())
+        per = {}
+        for (key, val), idx in sorted(groups.items()):
+            hit = int(pos_prot[si, idx].sum())
+            per.setdefault(key, {})[val] = {"detected": hit, "n": len(idx),
+                                            "rate": hit / len(idx)}
+        out.append(Summary(
+            setting=s, n_clean=n_clean, false_alarms=k, far=k / n_clean if n_clean else math.nan,
+            far_upper=far_upper_bound(k, n_clean),
+            far_upper_two_sided=two_sided_upper(k, n_clean),
+            false_match_fraction=float(clean_hits[si].sum() / denom) if denom else 0.0,
+            n_pos=n_pos, detected=det, detection=det / n_pos if n_pos else math.nan,
+            time_ms_per_image=float(time_ms[si]), per_group=per))
+    return out
+
+
+def select_setting(summaries: list[Summary], target_far: float) -> tuple[Summary, bool]:
+    """The setting with the highest detection whose FAR upper bound meets ``target_far``.
+
+    Ties go to the lower bound, then the faster setting. When no setting meets the target,
+    returns the setting with the lowest bound (then highest detection) and False.
+
+    Returns
+    -------
+    best : Summary
+    met : bool
+        Whether ``best.far_upper <= target_far``.
+    """
+    if not summaries:
+        raise ValueError("no settings to select from")
+    ok = [s for s in summaries if s.far_upper <= target_far]
+    if ok:
+        return max(ok, key=lambda s: (s.detection, -s.far_upper, -s.time_ms_per_image)), True
+    return min(summaries, key=lambda s: (s.far_upper, -s.detection, s.time_ms_per_image)), False
+
+
+# ----------------------------------------------------------------------------- null model
+
+
+def _chance_match_prob(n_frames: int, q: float, band_log: float, tone_logs: np.ndarray,
+                       det: DetectorConfig, *, cap: int = 30) -> float:
+    """P1 of the module docstring: a chance match of one spec at one scale on one track."""
+    from scipy.stats import poisson
+
+    m_tones = tone_logs.size
+    a = 2 * math.log1p(det.tone_rel_tol)
+    if band_log <= 0 or q <= 0 or n_frames < 2:
+        return 0.0
+    lam_t = n_frames * q * min(1.0, a / band_log)
+    lam_o = n_frames * q * max(0.0, 1 - m_tones * a / band_log)
+    k_min = max(math.ceil(det.min_occupancy * n_frames - 1e-9), 2)
+    k_max = math.floor(det.max_occupancy * n_frames + 1e-9)
+    c = np.arange(cap + 1)
+    pmf = poisson.pmf(c, lam_t)
+    grids = np.meshgrid(*([c] * m_tones), indexing="ij")
+    counts = np.stack([g.ravel() for g in grids])  # (M, cap^M)
+    prob = np.prod(pmf[counts], axis=0)
+    hit = (counts >= k_min) & (counts <= k_max)
+    enough = hit.sum(axis=0) >= min(det.min_tones, m_tones)
+    hit_sum = (counts * hit).sum(axis=0)
+    all_sum = counts.sum(axis=0)
+    if det.min_purity > 0:
+        o_max = np.floor(hit_sum / det.min_purity - all_sum + 1e-9)
+    else:
+        o_max = np.full(all_sum.shape, np.inf)
+    p_o = np.where(o_max >= 0, poisson.cdf(np.minimum(o_max, 1e9), lam_o), 0.0)
+    return float((prob * enough * p_o).sum())
+
+
+def null_model_far(evidence, config: AppConfig, *, q: float | None = None) -> dict:
+    """Expected chance tone matches E and image false-alarm probability 1 - exp(-E).
+
+    Parameters
+    ----------
+    evidence : Evidence
+        Supplies the tracks (frames, band) of the luma plane on each axis; judged at
+        ``config.detector.peak_false_prob``.
+    config : AppConfig
+        Detector settings and policies (monochrome specs only; see module docstring).
+    q : float, optional
+        Fraction of frames with a significant peak; None uses each track's measured
+        significant fraction.
+
+    Returns
+    -------
+    dict
+        ``expected_matches`` (E), ``far`` (1 - exp(-E)), ``p_candidate`` (chance that one
+        candidate reaches min_tones without the purity test, union over scales and tracks).
+    """
+    det = config.detector
+    ev = evidence.with_false_prob(det.peak_false_prob)
+    sdet = _scaled(det, ev.row_scale)
+    s_lo, s_hi = scale_range_cpr_per_hz(sdet)
+    a = 2 * math.log1p(det.tone_rel_tol)
+    mono = [s for s in _specs(config) if not s.is_rgb]
+    e_total, p_cands = 0.0, []
+    no_purity = det.replace(min_purity=0.0)
+    for planes in ev.axes.values():
+        lum = planes.get("L")
+        if lum is None:
+            continue
+        for spec in mono:
+            logs = np.log(np.array(spec.all_freqs_hz, dtype=float))
+            e_cand = 0.0
+            for t in lum.tracks:
+                band = math.log(t.hi_cpr / t.lo_cpr)
+                span = float(logs.max() - logs.min())
+                d = min(math.log(s_hi / s_lo), band - span - a)
+                if d < 0:
+                    continue
+                n_s = d / a + 1
+                qq = t.significant_fraction if q is None else q
+                f = int(t.freq_cpr.size)
+                e_total += n_s * _chance_match_prob(f, qq, band, logs, det)
+                e_cand += n_s * _chance_match_prob(f, qq, band, logs, no_purity)
+            p_cands.append(1 - math.exp(-e_cand))
+    return {"expected_matches": e_total, "far": 1 - math.exp(-e_total),
+            "p_candidate": float(np.mean(p_cands)) if p_cands else 0.0}
