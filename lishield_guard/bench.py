@@ -34,6 +34,7 @@ __all__ = [
     "pillow_rgb_floor",
     "plot_report",
     "run_bench",
+    "run_bench_parallel",
     "summarize",
     "synth_items",
     "time_target",
@@ -244,6 +245,72 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
                 "stages_ms": {k: float(x) for k, x in v.timings_ms.items()}}
         records.append(rec)
     return {"records": records, "repeat": repeat, "settings": [s.name for s in settings],
+            "n_skipped": len(items) - len(records)}
+
+
+def _bench_worker(items: list[BenchItem], names: list[str], config_path: str | None,
+                  repeat: int, time_budget_s: float | None) -> dict:
+    """Worker-process body of `run_bench_parallel`: settings rebuilt from names and a path."""
+    from lishield_guard.config import load_config
+
+    settings = make_settings(names, load_config(config_path))
+    return run_bench(items, settings, repeat=repeat, time_budget_s=time_budget_s)
+
+
+def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
+                       config_path: Path | None = None, jobs: int = 2, repeat: int = 1,
+                       progress: Callable[[Iterable], Iterable] | None = None,
+                       time_budget_s: float | None = None, chunk: int = 8) -> dict:
+    """`run_bench` over ``jobs`` spawned worker processes (each interleaves per image).
+
+    Every image is still timed against the Pillow floor in the same process right before or
+    after, so the paired ratios stay meaningful; absolute times include contention between
+    workers. Settings are rebuilt in each worker from ``names`` and ``config_path``.
+
+    Parameters
+    ----------
+    items : sequence of BenchItem
+        Images with labels.
+    names : sequence of str
+        Keys of `SETTINGS`.
+    config_path : Path, optional
+        Base config; default the shipped one.
+    jobs : int
+        Worker processes (>= 1).
+    repeat : int
+        Interleaved repetitions per image.
+    progress : callable, optional
+        Wraps an iterable of chunks' image counts (e.g. ``tqdm``-like, updated per chunk).
+    time_budget_s : float, optional
+        Per-worker budget (see `run_bench`).
+    chunk : int
+        Images per task.
+
+    Returns
+    -------
+    dict
+        As `run_bench`, records in item order.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    cfg = None if config_path is None else str(config_path)
+    chunks = [list(items[i:i + chunk]) for i in range(0, len(items), chunk)]
+    t_start = time.perf_counter()
+    records: list[dict] = []
+    with ProcessPoolExecutor(max_workers=max(1, jobs),
+                             mp_context=mp.get_context("spawn")) as ex:
+        futs = []
+        for c in chunks:
+            futs.append(ex.submit(_bench_worker, c, list(names), cfg, repeat, time_budget_s))
+        done = progress(futs) if progress else futs
+        for fut in done:
+            out = fut.result()
+            records += out["records"]
+            if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
+                for f in futs:
+                    f.cancel()
+    return {"records": records, "repeat": repeat, "settings": list(names),
             "n_skipped": len(items) - len(records)}
 
 

@@ -83,6 +83,9 @@ class DetectorConfig:
         signal and a spec's template that counts as that barcode (unitless, 0-1).
     fold_min_snr : float
         Pattern folding: the folded pattern's power over its noise power must exceed this.
+    fold_min_margin : float
+        Pattern folding: the spec's template must beat the best stationary look-alike (k equal
+        square or sine cycles per period: PWM, mains, periodic texture) by this much rho.
     fast_decode : bool
         Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
         False decodes full colour with Pillow first (the reference the fast path is measured
@@ -118,6 +121,7 @@ class DetectorConfig:
     orientations: Literal["both", "rows"] = "both"
     fold_min_rho: float = 0.85
     fold_min_snr: float = 30.0
+    fold_min_margin: float = 0.1
     fast_decode: bool = True
     max_decode_rows: int = 1536
 

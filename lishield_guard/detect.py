@@ -231,10 +231,12 @@ def _fold_decision(m: SpecMatch, spec: BarcodeSpec, chans: dict[str, PlaneAnalys
             return m
         fits.append(fm)
     rho = float(np.mean([f.rho for f in fits]))
+    rho_alt = float(np.mean([f.rho_lookalike for f in fits]))
     snr = float(min(f.fold_snr for f in fits))
-    info = {**fits[0].to_dict(), "rho": round(rho, 4), "fold_snr": round(snr, 2),
-            "channels": len(fits)}
-    if rho >= det.fold_min_rho and snr >= det.fold_min_snr:
+    info = {**fits[0].to_dict(), "rho": round(rho, 4), "rho_lookalike": round(rho_alt, 4),
+            "fold_snr": round(snr, 2), "channels": len(fits)}
+    if (rho >= det.fold_min_rho and snr >= det.fold_min_snr
+            and rho - rho_alt >= det.fold_min_margin):
         reason = (f"the stripes repeat every {fits[0].period_rows:.1f} rows and the folded "
                   f"pattern fits {spec.name} (rho={rho:.2f}, {fits[0].cycles_f1:.2f} cycles of "
                   f"f_1 per slot)")

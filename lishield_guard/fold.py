@@ -43,10 +43,12 @@ class FoldMatch:
     cycles_f1: float
     fold_snr: float
     n_periods: float
+    rho_lookalike: float = 0.0
 
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence."""
         return {"spec": self.spec, "rho": round(self.rho, 4),
+                "rho_lookalike": round(self.rho_lookalike, 4),
                 "period_rows": round(self.period_rows, 3),
                 "cycles_per_slot_f1": round(self.cycles_f1, 3),
                 "fold_snr": round(self.fold_snr, 2), "n_periods": round(self.n_periods, 2)}
@@ -101,6 +103,40 @@ def fold(x: np.ndarray, period_rows: float, n_bins: int = N_PHASE_BINS
     dof = max(x.size - int((counts > 0).sum()), 1)
     within = float(((x - means[b]) ** 2).sum()) / dof
     return means, counts, within
+
+
+def _lookalike_templates(n_bins: int) -> np.ndarray:
+    """Stationary alternatives folded at the period: k equal square cycles, any duty/smoothing.
+
+    PWM dimming, periodic texture (blinds, bricks) and mains flicker all fold to k identical
+    cycles per period; a barcode must fit its own template better than any of these.
+    """
+    sub = 8
+    phase = (np.arange(n_bins * sub) + 0.5) / (n_bins * sub)
+    ks = np.arange(1, max(2, n_bins // 4) + 1)
+    duties = np.linspace(0.1, 0.9, 9)
+    cyc = (ks[:, None, None] * phase[None, None, :]) % 1.0
+    on = (cyc < duties[None, :, None]).astype(np.float32).reshape(-1, n_bins * sub)
+    sine = 0.5 + 0.5 * np.cos(2 * np.pi * ks[:, None] * phase[None, :])
+    waves = np.concatenate([on, sine.astype(np.float32)], axis=0)
+    out = []
+    for frac in EXPOSURE_FRACTIONS:
+        width = max(1, int(round(frac * n_bins * sub / 3)))
+        sm = uniform_filter1d(waves, size=width, axis=1, mode="wrap") if width > 1 else waves
+        out.append(sm.reshape(waves.shape[0], n_bins, sub).mean(axis=2))
+    return np.stack(out, axis=1)
+
+
+def _best_rho(tpl: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[float, tuple]:
+    """Best normalised circular correlation of templates (..., n_bins) with y (zero mean)."""
+    tpl = tpl - gaussian_filter1d(tpl, n_bins / (2 * math.pi * HIGHPASS_CYCLES), axis=-1,
+                                  mode="wrap")
+    tpl = tpl - tpl.mean(axis=-1, keepdims=True)
+    norm = np.sqrt((tpl ** 2).sum(axis=-1))
+    cc = np.fft.irfft(np.fft.rfft(tpl, axis=-1) * np.conj(np.fft.rfft(y)), n=n_bins, axis=-1)
+    rho = cc.max(axis=-1) / np.maximum(norm, 1e-12) / math.sqrt(float(y @ y))
+    k = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    return float(rho[k]), k
 
 
 def refine_period(x: np.ndarray, period_rows: float, *, span: float = 0.03,
@@ -192,18 +228,9 @@ def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str,
         fold_noise = within * float(np.sum(1.0 / np.maximum(counts, 1)))
         snr = power / max(fold_noise, 1e-30)
         tpl = _templates(spec, channel, cycles, n_bins, period)
-        tpl = tpl - gaussian_filter1d(tpl, n_bins / (2 * math.pi * HIGHPASS_CYCLES), axis=2,
-                                      mode="wrap")
-        tpl = tpl - tpl.mean(axis=2, keepdims=True)
-        norm = np.sqrt((tpl ** 2).sum(axis=2))
-        # circular cross-correlation over all shifts, via FFT along phase
-        cc = np.fft.irfft(np.fft.rfft(tpl, axis=2) * np.conj(np.fft.rfft(y))[None, None, :],
-                          n=n_bins, axis=2)
-        # either polarity is not allowed: more light is brighter
-        rho = cc.max(axis=2) / np.maximum(norm, 1e-12) / math.sqrt(power)
-        k = np.unravel_index(int(np.argmax(rho)), rho.shape)
-        r = float(rho[k])
+        r, k = _best_rho(tpl, y, n_bins)  # one polarity only: more light is brighter
         if best is None or r > best.rho:
+            r_alt, _ = _best_rho(_lookalike_templates(n_bins), y, n_bins)
             best = FoldMatch(spec.name, r, float(period), float(cycles[k[0]]), float(snr),
-                             float(x.size / period))
+                             float(x.size / period), r_alt)
     return best

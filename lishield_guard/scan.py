@@ -367,9 +367,17 @@ def build_record(item: ScanItem, fields: dict[str, Any] | None = None) -> dict[s
 _WORKER_CONFIG: AppConfig | None = None
 
 
+def _single_thread() -> None:
+    """One core per worker: OpenCV's own thread pool would oversubscribe the machine."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
 def _init_worker(config: AppConfig) -> None:
     global _WORKER_CONFIG
     _WORKER_CONFIG = config
+    _single_thread()
     import lishield_guard.detect  # noqa: F401 - warm the imports once per worker
 
 
@@ -468,6 +476,11 @@ def _run_pool(items: Iterable[ScanItem], *, config: AppConfig, jobs: int,
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _scan_on_dask(source: str | bytes, config: AppConfig) -> dict[str, Any]:
+    _single_thread()
+    return scan_source(source, config)
+
+
 def _run_dask(items: Iterable[ScanItem], *, config: AppConfig, client: Any,
               max_in_flight: int | None) -> Iterator[dict[str, Any]]:
     from distributed import as_completed
@@ -496,7 +509,7 @@ def _run_dask(items: Iterable[ScanItem], *, config: AppConfig, client: Any,
             continue
         while len(pending) >= max_in_flight:
             yield one()
-        fut = client.submit(scan_source, item.source, cfg_future, pure=False)
+        fut = client.submit(_scan_on_dask, item.source, cfg_future, pure=False)
         pending[fut] = item
         ac.add(fut)
     while pending:

@@ -262,7 +262,7 @@ def calibrate_command(
                                                         for x in nres])),
                     "p_cand_noise_q": float(np.mean([x["noise"]["p_candidate"] for x in nres]))}
 
-    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    date = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     header = "\n".join([
         "lishield-guard calibrated config (written by `lishield-guard calibrate`).",
         f"date: {date}",
@@ -281,8 +281,6 @@ def calibrate_command(
     out.write_text(text, encoding="utf-8")
     load_config(out)  # what we ship must load
 
-    from lishield_guard.calibrate_report import write_report
-
     info = {"clean_dirs": [str(d) for d in clean], "positives": str(positives),
             "n_clean": len(ok_c), "n_pos": len(ok_p), "errors": errors[:20],
             "n_errors": len(errors), "target_far": target_far, "met": met,
@@ -291,9 +289,8 @@ def calibrate_command(
             "evidence_s": t_evidence, "total_s": time.perf_counter() - t0,
             "cached": sum(1 for r, _ in ok_c + ok_p if r.get("cached")),
             "command": " ".join(["lishield-guard", *sys.argv[1:]]),
-            "grid": {"default": vars(grid) if False else grid.__dict__,
-                     "paper": pgrid.__dict__}}
-    paths = write_report(report, summaries, best, info)
+            "grid": {"default": grid.__dict__, "paper": pgrid.__dict__}}
+    paths = _write_report(report, summaries, best, info)
     typer.echo(f"{len(summaries)} settings on {len(ok_c)} clean + {len(ok_p)} positive images "
                f"in {info['total_s']:.0f} s", err=True)
     typer.echo(f"chosen: {best.setting.label()}", err=True)
@@ -306,6 +303,206 @@ def calibrate_command(
                    f"(have {len(ok_c)}). Wrote the lowest-bound setting, marked NOT MET.",
                    err=True)
         raise typer.Exit(int(ExitCode.ERROR))
+
+
+def _heat(ax, summaries, profile, fixed: dict, xk: str, yk: str, value: str, title: str):
+    import numpy as np
+
+    pts = {}
+    for s in summaries:
+        d = s.setting.as_dict
+        if s.setting.profile != profile:
+            continue
+        if any(d.get(k) != v for k, v in fixed.items() if k not in (xk, yk)):
+            continue
+        pts[(d[xk], d[yk])] = getattr(s, value)
+    xs = sorted({k[0] for k in pts})
+    ys = sorted({k[1] for k in pts})
+    z = np.full((len(ys), len(xs)), np.nan)
+    for (x, y), v in pts.items():
+        z[ys.index(y), xs.index(x)] = v
+    im = ax.imshow(z, origin="lower", aspect="auto", cmap="viridis")
+    ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+    ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+    ax.set_xlabel(xk)
+    ax.set_ylabel(yk)
+    ax.set_title(title, fontsize=9)
+    for i in range(len(ys)):
+        for j in range(len(xs)):
+            if np.isfinite(z[i, j]):
+                ax.text(j, i, f"{z[i, j]:.3g}", ha="center", va="center", fontsize=7,
+                        color="w")
+    ax.figure.colorbar(im, ax=ax)
+
+
+def _write_report(report: Path, summaries, best, info: dict) -> dict:
+    """summary.md, settings.jsonl and PNG plots into ``report``; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = {}
+    with open(report / "settings.jsonl", "w", encoding="utf-8") as fh:
+        for s in summaries:
+            fh.write(json.dumps(s.to_dict()) + "\n")
+    paths["settings"] = report / "settings.jsonl"
+
+    # heatmaps (paper Figs. 21-22 analogues)
+    fixed_d = best.setting.as_dict if best.setting.profile == "default" else next(
+        (s.setting.as_dict for s in summaries if s.setting.profile == "default"), {})
+    paper_best = max((s for s in summaries if s.setting.profile == "paper"),
+                     key=lambda s: (s.far_upper <= info["target_far"], s.detection), default=None)
+    panels = []
+    if fixed_d:
+        panels += [("default", fixed_d, "tone_rel_tol", "peak_false_prob", "false_match_fraction",
+                    "default: false candidate matches (>= min_tones) on clean"),
+                   ("default", fixed_d, "tone_rel_tol", "peak_false_prob", "far_upper",
+                    "default: FAR 95% upper bound"),
+                   ("default", fixed_d, "tone_rel_tol", "peak_false_prob", "detection",
+                    "default: detection rate"),
+                   ("default", fixed_d, "min_purity", "min_occupancy", "detection",
+                    "default: detection rate")]
+    if paper_best is not None:
+        pd_ = paper_best.setting.as_dict
+        panels += [("paper", pd_, "ratio_tol", "n_b", "false_match_fraction",
+                    "paper: fraction of false ratio matches (Fig. 21)"),
+                   ("paper", pd_, "ratio_tol", "gamma", "far", "paper: clean FAR (Fig. 22)"),
+                   ("paper", pd_, "ratio_tol", "gamma", "detection", "paper: detection"),
+                   ("paper", pd_, "ratio_tol", "max_peaks", "detection", "paper: detection")]
+    if panels:
+        n_cols = 4
+        n_rows = math.ceil(len(panels) / n_cols)
+        fig, axes = plt.subplots(n_rows, n_cols, figsize=(4.6 * n_cols, 3.8 * n_rows),
+                                 squeeze=False)
+        for ax, (prof, fixed, xk, yk, val, title) in zip(axes.flat, panels, strict=False):
+            _heat(ax, summaries, prof, fixed, xk, yk, val, title)
+        for ax in list(axes.flat)[len(panels):]:
+            ax.axis("off")
+        fig.tight_layout()
+        fig.savefig(report / "heatmaps.png", dpi=110)
+        plt.close(fig)
+        paths["heatmaps"] = report / "heatmaps.png"
+
+    # ROC-style: detection vs FAR upper bound
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for prof, marker in (("default", "o"), ("paper", "s")):
+        pts = [(s.far_upper, s.detection) for s in summaries if s.setting.profile == prof]
+        if pts:
+            x, y = zip(*pts, strict=True)
+            ax.scatter(x, y, s=12, marker=marker, alpha=0.6, label=f"{prof} profile")
+    ax.scatter([best.far_upper], [best.detection], s=120, facecolors="none", edgecolors="r",
+               label="chosen")
+    ax.axvline(info["target_far"], color="k", ls="--", lw=1, label="target FAR")
+    ax.set_xscale("log")
+    ax.set_xlabel("clean-set FAR, 95% one-sided upper bound")
+    ax.set_ylabel("detection rate on positives")
+    ax.set_title(f"{len(summaries)} settings, {info['n_clean']} clean / {info['n_pos']} positives")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(report / "roc.png", dpi=110)
+    plt.close(fig)
+    paths["roc"] = report / "roc.png"
+
+    # detection per kind of positive
+    bars = [(f"{k}: {v}", d["rate"], d["n"]) for k, vals in best.per_group.items()
+            for v, d in vals.items() if k != "kind"]
+    if bars:
+        fig, ax = plt.subplots(figsize=(7, 0.28 * len(bars) + 1.2))
+        labels, rates, ns = zip(*bars, strict=True)
+        ax.barh(range(len(bars)), rates, color="tab:blue")
+        ax.set_yticks(range(len(bars)), [f"{lab} (n={n})" for lab, n in
+                                         zip(labels, ns, strict=True)], fontsize=7)
+        ax.invert_yaxis()
+        ax.set_xlim(0, 1)
+        ax.set_xlabel("detection rate")
+        ax.set_title(f"chosen: {best.setting.label()}", fontsize=7)
+        fig.tight_layout()
+        fig.savefig(report / "detection_by_kind.png", dpi=110)
+        plt.close(fig)
+        paths["by_kind"] = report / "detection_by_kind.png"
+
+    # markdown
+    b = best
+    lines = [
+        "# Calibration report", "",
+        f"- date: {info['date']}",
+        f"- command: `{info['command']}`",
+        f"- clean: {', '.join(info['clean_dirs'])} - **{info['n_clean']} images**",
+        f"- positives: {info['positives']} - **{info['n_pos']} images**",
+        f"- unreadable images skipped: {info['n_errors']}",
+        f"- time: {info['total_s']:.0f} s ({info['evidence_s']:.0f} s per-image evidence; "
+        f"{info['cached']} images from cache)",
+        f"- settings swept: {len(summaries)}",
+        f"- config written: `{info['config_out']}`", "",
+        "## Chosen setting", "",
+        f"`{b.setting.label()}`", "",
+        f"- false alarms on clean: {b.false_alarms}/{b.n_clean} (FAR {b.far:.4g})",
+        f"- FAR upper bound, exact one-sided 95 % Clopper-Pearson: **{b.far_upper:.4g}** "
+        f"(two-sided 95 % interval upper end: {b.far_upper_two_sided:.4g})",
+        f"- target FAR {info['target_far']:g}: **{'met' if info['met'] else 'NOT MET'}**",
+        f"- detection on positives: **{b.detected}/{b.n_pos} = {b.detection:.3f}**",
+        f"- fraction of false candidate matches on clean: {b.false_match_fraction:.4g}",
+        f"- decision time: {b.time_ms_per_image:.1f} ms/image (decode + profile + match)", "",
+        f"With 0 false alarms, n >= ln(0.05)/ln(1 - {info['target_far']:g}) = "
+        f"{info['images_needed']} clean images are needed to show FAR <= {info['target_far']:g}"
+        f" at 95 % (one-sided); this clean set has {info['n_clean']}, so the smallest bound it "
+        f"can show is {1 - 0.05 ** (1 / info['n_clean']):.3g}.", "",
+    ]
+    if not info["met"]:
+        lines += ["**No setting meets the target.** The config holds the setting with the "
+                  "lowest bound and says NOT MET in its header.", ""]
+    lines += ["### False alarms of the chosen setting by clean subset", "",
+              "| subset | false alarms | images |", "|---|---|---|"]
+    lines += [f"| {k} | {v[0]} | {v[1]} |" for k, v in sorted(info["fa_by_subset"].items())]
+    if info["fa_files"]:
+        lines += ["", "False-alarm files: " + ", ".join(f"`{f}`" for f in info["fa_files"][:20])]
+    lines += ["", "### Detection by kind of positive", "", "| group | value | detected | n | rate |",
+              "|---|---|---|---|---|"]
+    for k, vals in b.per_group.items():
+        for v, d in vals.items():
+            lines.append(f"| {k} | {v} | {d['detected']} | {d['n']} | {d['rate']:.3f} |")
+    nm = info.get("null_model")
+    lines += ["", "## Null model vs measurement (default profile, chosen setting)", ""]
+    if nm:
+        lines += [
+            "Chance matches of random significant peaks, uniform in log frequency (derivation "
+            "in `lishield_guard/calibrate.py`), averaged over "
+            f"{nm['n_images']} clean images:", "",
+            "| quantity | null model, q = peak_false_prob | null model, q = measured per "
+            "track | measured on clean set |", "|---|---|---|---|",
+            f"| image false-alarm rate | {nm['far_noise_q']:.3g} | {nm['far_measured_q']:.3g} "
+            f"| {b.far:.3g} ({b.false_alarms}/{b.n_clean}) |",
+            f"| candidate with >= min_tones (no purity test) | {nm['p_cand_noise_q']:.3g} | "
+            f"{nm['p_cand_measured_q']:.3g} | {b.false_match_fraction:.3g} |", "",
+            "The model assumes peaks independent and log-uniform; real look-alikes (mains, PWM "
+            "harmonic combs) put peaks at structured frequencies, so a measured rate above the "
+            "model flags structured interference rather than noise.", ""]
+    else:
+        lines += ["(not evaluated: the chosen setting is not the default profile, or no cache)",
+                  ""]
+    lines += ["## Top settings (by detection, among bound <= target first)", "",
+              "| setting | FA/n | FAR bound | detection | false match frac | ms/img |",
+              "|---|---|---|---|---|---|"]
+    ranked = sorted(summaries, key=lambda s: (s.far_upper > info["target_far"], -s.detection,
+                                              s.far_upper))
+    for s in ranked[:15]:
+        lines.append(f"| {s.setting.label()} | {s.false_alarms}/{s.n_clean} | "
+                     f"{s.far_upper:.3g} | {s.detection:.3f} | {s.false_match_fraction:.3g} | "
+                     f"{s.time_ms_per_image:.0f} |")
+    for prof in ("default", "paper"):
+        cand = [s for s in summaries if s.setting.profile == prof]
+        if cand:
+            top = max(cand, key=lambda s: (s.far_upper <= info["target_far"], s.detection))
+            lines.append(f"\nBest {prof}-profile setting: `{top.setting.label()}`: FA "
+                         f"{top.false_alarms}/{top.n_clean}, bound {top.far_upper:.3g}, "
+                         f"detection {top.detection:.3f}.")
+    lines += ["", "## Plots", ""]
+    lines += [f"- `{p.name}`" for k, p in paths.items() if k != "settings"]
+    lines += [f"\n![{k}]({p.name})" for k, p in paths.items() if str(p).endswith(".png")]
+    (report / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    paths["summary"] = report / "summary.md"
+    return paths
 
 
 def register(app: typer.Typer) -> None:

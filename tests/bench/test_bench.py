@@ -105,3 +105,16 @@ def test_time_budget_keeps_a_prefix(tiny_dataset):
     rows = bench.summarize(run)
     assert rows[0]["n_images"] == len(run["records"])
     assert math.isnan(rows[0]["median_ratio"]) == (not run["records"])
+
+
+def test_parallel_matches_sequential_verdicts(tiny_dataset):
+    items = bench.synth_items(tiny_dataset)
+    names = ["paper", "fast"]
+    seq = bench.run_bench(items, bench.make_settings(names, load_config()))
+    par = bench.run_bench_parallel(items, names, jobs=2, chunk=2)
+    assert par["n_skipped"] == 0
+    assert [r["path"] for r in par["records"]] == [r["path"] for r in seq["records"]]
+    for a, b in zip(seq["records"], par["records"], strict=True):
+        for n in names:
+            assert a["settings"][n]["protected"] == b["settings"][n]["protected"]
+            assert b["settings"][n]["ratio"] > 0

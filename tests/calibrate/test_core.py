@@ -1,0 +1,60 @@
+"""The fast sweep path agrees with detect.decide, and the null model behaves."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from lishield_guard import calibrate as cal
+from lishield_guard.config import AppConfig, default_config
+from lishield_guard.detect import decide
+
+
+@pytest.fixture(scope="module")
+def records(tiny_sets):
+    cfg = default_config()
+    files = sorted(tiny_sets["pos"].glob("*.jpg")) + sorted(tiny_sets["neg"].glob("*.jpg"))
+    return cfg, [cal.image_record(p, cfg, paper_grid=cal.PaperGrid(n_b=(4,), max_peaks=(2,)))
+                 for p in files]
+
+
+def test_candidate_table_agrees_with_decide(records):
+    cfg, recs = records
+    grid = cal.DefaultGrid(peak_false_prob=(1e-2, 1e-4), tone_rel_tol=(0.03, 0.05),
+                           min_occupancy=(0.04,), max_occupancy=(0.8,), min_purity=(0.3, 0.6),
+                           min_tones=(2, 3))
+    tables = np.stack([cal.candidate_table(r["evidence"], cfg, grid)[0] for r in recs])
+    settings, prot, _, _ = cal.default_scores(tables, grid)
+    n_pos = 0
+    for s, p in zip(settings, prot, strict=True):
+        det = s.apply(cfg.detector)
+        app = AppConfig(detector=det, limits=cfg.limits, policies=cfg.policies)
+        want = [decide(r["evidence"].with_false_prob(det.peak_false_prob), app).protected
+                for r in recs]
+        assert p.tolist() == want, s.label()
+        n_pos += sum(want)
+    assert n_pos > 0  # the easy positives are found by some settings
+
+
+def test_paper_peaks_match_run_paper(records, tiny_sets):
+    from lishield_guard import detect
+
+    cfg, recs = records
+    det = cfg.detector.replace(profile="paper", n_block_rows=4, n_block_cols=4, max_peaks=2)
+    f = sorted(tiny_sets["pos"].glob("*.jpg"))[0]
+    v = detect(f, det)
+    assert np.allclose(recs[0]["paper_peaks"][(4, 2)], v.evidence["frequencies_hz"], atol=1e-2)
+
+
+def test_null_model_monotone_and_zero(records):
+    cfg, recs = records
+    ev = recs[0]["evidence"]
+    vals = [cal.null_model_far(ev, cfg, q=q)["far"] for q in (0.0, 1e-3, 1e-2, 1e-1)]
+    assert vals[0] == 0.0
+    assert all(a <= b for a, b in itertools.pairwise(vals))
+    loose = AppConfig(detector=cfg.detector.replace(min_purity=0.0, tone_rel_tol=0.08),
+                      limits=cfg.limits, policies=cfg.policies)
+    assert cal.null_model_far(ev, loose, q=0.05)["far"] >= cal.null_model_far(ev, cfg,
+                                                                             q=0.05)["far"]
