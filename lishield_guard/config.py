@@ -121,7 +121,7 @@ class DetectorConfig:
     orientations: Literal["both", "rows"] = "both"
     fold_min_rho: float = 0.85
     fold_min_snr: float = 30.0
-    fold_min_margin: float = 0.1
+    fold_min_margin: float = 0.05
     fast_decode: bool = True
     max_decode_rows: int = 1536
 

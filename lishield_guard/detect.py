@@ -11,7 +11,7 @@ import numpy as np
 from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig, default_config
 from lishield_guard.decode import Decoded, decode
-from lishield_guard.fold import candidate_periods, fold_match
+from lishield_guard.fold import candidate_periods, fold_match, refine_period
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles
 from lishield_guard.spec import BarcodeSpec
@@ -214,8 +214,9 @@ def _periods(luma: PlaneAnalysis, specs, det: DetectorConfig) -> list[float]:
     ranges = [_period_range_rows(s, det) for _, s in specs]
     lo = min(r[0] for r in ranges)
     hi = max(r[1] for r in ranges)
-    return candidate_periods(luma.common.astype(np.float64), min_rows=max(lo, 4.0),
-                             max_rows=hi)
+    x = luma.common.astype(np.float64)
+    coarse = candidate_periods(x, min_rows=max(lo, 4.0), max_rows=hi)
+    return [refine_period(x, p) for p in coarse]
 
 
 def _fold_decision(m: SpecMatch, spec: BarcodeSpec, chans: dict[str, PlaneAnalysis],
@@ -226,7 +227,8 @@ def _fold_decision(m: SpecMatch, spec: BarcodeSpec, chans: dict[str, PlaneAnalys
     fits = []
     for c, pa in chans.items():
         fm = fold_match(pa.common.astype(np.float64), pa.noise_var, spec, c,
-                        period_range_rows=_period_range_rows(spec, det), periods=periods)
+                        period_range_rows=_period_range_rows(spec, det), periods=periods,
+                        refine=False)
         if fm is None:
             return m
         fits.append(fm)

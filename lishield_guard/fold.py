@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
@@ -105,6 +106,7 @@ def fold(x: np.ndarray, period_rows: float, n_bins: int = N_PHASE_BINS
     return means, counts, within
 
 
+@lru_cache(maxsize=64)
 def _lookalike_templates(n_bins: int) -> np.ndarray:
     """Stationary alternatives folded at the period: k equal square cycles, any duty/smoothing.
 
@@ -127,13 +129,30 @@ def _lookalike_templates(n_bins: int) -> np.ndarray:
     return np.stack(out, axis=1)
 
 
+def _prepared(tpl: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """High-passed, zero-mean templates as spectra, and their norms (cached per bank)."""
+    key = (id(tpl), n_bins)
+    hit = _PREPARED.get(key)
+    if hit is not None and hit[0] is tpl:
+        return hit[1], hit[2]
+    t = tpl - gaussian_filter1d(tpl, n_bins / (2 * math.pi * HIGHPASS_CYCLES), axis=-1,
+                                mode="wrap")
+    t = t - t.mean(axis=-1, keepdims=True)
+    spec = np.fft.rfft(t, axis=-1)
+    norm = np.sqrt((t ** 2).sum(axis=-1))
+    if len(_PREPARED) > 512:
+        _PREPARED.clear()
+    _PREPARED[key] = (tpl, spec, norm)
+    return spec, norm
+
+
+_PREPARED: dict = {}
+
+
 def _best_rho(tpl: np.ndarray, y: np.ndarray, n_bins: int) -> tuple[float, tuple]:
     """Best normalised circular correlation of templates (..., n_bins) with y (zero mean)."""
-    tpl = tpl - gaussian_filter1d(tpl, n_bins / (2 * math.pi * HIGHPASS_CYCLES), axis=-1,
-                                  mode="wrap")
-    tpl = tpl - tpl.mean(axis=-1, keepdims=True)
-    norm = np.sqrt((tpl ** 2).sum(axis=-1))
-    cc = np.fft.irfft(np.fft.rfft(tpl, axis=-1) * np.conj(np.fft.rfft(y)), n=n_bins, axis=-1)
+    spec, norm = _prepared(tpl, n_bins)
+    cc = np.fft.irfft(spec * np.conj(np.fft.rfft(y)), n=n_bins, axis=-1)
     rho = cc.max(axis=-1) / np.maximum(norm, 1e-12) / math.sqrt(float(y @ y))
     k = np.unravel_index(int(np.argmax(rho)), rho.shape)
     return float(rho[k]), k
@@ -161,9 +180,19 @@ def refine_period(x: np.ndarray, period_rows: float, *, span: float = 0.03,
     return best_p
 
 
-def _templates(spec: BarcodeSpec, channel: str, cycles_f1: np.ndarray, n_bins: int,
-               period_rows: float) -> np.ndarray:
+def _cycle_grid(spec: BarcodeSpec) -> np.ndarray:
+    """c_1 = f_1 / f_B values searched: from 1 to f_1 / (80 Hz x M) (the flicker rule)."""
+    f_b_min = spec.n_tones * 80.0
+    c_hi = max(1.0, spec.f1_hz / f_b_min)
+    if c_hi <= 1:
+        return np.ones(1)
+    return np.exp(np.linspace(0.0, math.log(c_hi), N_CYCLE_STEPS))
+
+
+@lru_cache(maxsize=256)
+def _templates(spec: BarcodeSpec, channel: str, n_bins: int) -> np.ndarray:
     """Templates (n_cycles, n_exposures, n_bins): ON/OFF per phase bin, box-smoothed."""
+    cycles_f1 = _cycle_grid(spec)
     fs = np.array(dict(spec.channels)[channel])
     order = np.array(spec.slot_order())
     m = spec.n_tones
@@ -180,14 +209,13 @@ def _templates(spec: BarcodeSpec, channel: str, cycles_f1: np.ndarray, n_bins: i
         width = max(1, int(round(frac * slot_samples)))
         sm = uniform_filter1d(on, size=width, axis=1, mode="wrap") if width > 1 else on
         out[:, j] = sm.reshape(cycles_f1.size, n_bins, sub).mean(axis=2)
-    # the camera also averages each phase bin over at least one row
-    _ = period_rows
+    out.setflags(write=False)
     return out
 
 
 def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str, *,
-               period_range_rows: tuple[float, float], periods: list[float] | None = None
-               ) -> FoldMatch | None:
+               period_range_rows: tuple[float, float], periods: list[float] | None = None,
+               refine: bool = True) -> FoldMatch | None:
     """Best correlation of the spec's channel template with x folded at candidate periods.
 
     Parameters
@@ -202,18 +230,19 @@ def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str,
         Physically possible pattern periods in rows.
     periods : list of float, optional
         Candidate periods (rows); found from x when None.
+    refine : bool
+        Refine each candidate with `refine_period` (callers that share periods between specs
+        refine once themselves).
     """
     lo, hi = period_range_rows
     if periods is None:
         periods = candidate_periods(x, min_rows=lo, max_rows=hi)
-    f_b_min = spec.n_tones * 80.0  # flicker rule: f_B / M > 80 Hz
-    c_hi = max(1.0, spec.f1_hz / f_b_min)
-    cycles = np.exp(np.linspace(0.0, math.log(c_hi), N_CYCLE_STEPS)) if c_hi > 1 else np.ones(1)
+    cycles = _cycle_grid(spec)
     best: FoldMatch | None = None
     for coarse in periods:
         if not lo <= coarse <= hi or x.size < MIN_PERIODS * coarse:
             continue
-        period = refine_period(x, coarse)
+        period = refine_period(x, coarse) if refine else coarse
         n_bins = int(min(N_PHASE_BINS, max(12, period // 1)))
         # the pattern's content lies at >= M / period cycles per row; scene structure below
         # that would only blur the fold
@@ -227,7 +256,7 @@ def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str,
         # repeatability: power of the folded pattern over what its bins' scatter predicts
         fold_noise = within * float(np.sum(1.0 / np.maximum(counts, 1)))
         snr = power / max(fold_noise, 1e-30)
-        tpl = _templates(spec, channel, cycles, n_bins, period)
+        tpl = _templates(spec, channel, n_bins)
         r, k = _best_rho(tpl, y, n_bins)  # one polarity only: more light is brighter
         if best is None or r > best.rho:
             r_alt, _ = _best_rho(_lookalike_templates(n_bins), y, n_bins)
