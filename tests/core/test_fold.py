@@ -1,4 +1,4 @@
-"""Pattern folding: period recovery, template fit, and look-alikes losing to the stationary model."""
+"""Pattern folding: period recovery, template fit, and look-alikes losing to the stationary fit."""
 
 from __future__ import annotations
 
