@@ -7,6 +7,8 @@ STAMP := $(VENV)/.installed
 .PHONY: run test lint bench clean venv
 
 $(STAMP): pyproject.toml
+	@command -v cc >/dev/null 2>&1 || { echo "installing a C compiler (firmware player tests)"; \
+	  apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null; }
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'

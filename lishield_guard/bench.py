@@ -188,7 +188,8 @@ def _time_one(path: Path, settings: Sequence[Setting], *, repeat: int, offset: i
 
 def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat: int = 1,
               progress: Callable[[Iterable], Iterable] | None = None,
-              time_budget_s: float | None = None) -> dict:
+              time_budget_s: float | None = None, deadline_unix_s: float | None = None
+              ) -> dict:
     """Time every setting and the Pillow floor on every item, interleaved per image.
 
     Parameters
@@ -204,6 +205,8 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
     time_budget_s : float, optional
         Stop starting new items after this many seconds (the rest are left out and counted in
         ``n_skipped``); pass items in random order so the prefix stays representative.
+    deadline_unix_s : float, optional
+        The same as an absolute ``time.time()`` (shared by worker processes).
 
     Returns
     -------
@@ -217,10 +220,12 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
     if items:  # warm-up: imports, lazy library init, page cache
         _time_one(items[0].path, settings, repeat=1, offset=0)
     records = []
-    t_start = time.perf_counter()
+    if time_budget_s is not None:
+        end = time.time() + time_budget_s
+        deadline_unix_s = end if deadline_unix_s is None else min(end, deadline_unix_s)
     seq = progress(items) if progress else items
     for i, it in enumerate(seq):
-        if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
+        if deadline_unix_s is not None and time.time() > deadline_unix_s:
             break
         gc.collect()
         rec: dict = {"path": str(it.path), "label": it.label, "group": it.group,
@@ -249,12 +254,14 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
 
 
 def _bench_worker(items: list[BenchItem], names: list[str], config_path: str | None,
-                  repeat: int, time_budget_s: float | None) -> dict:
+                  repeat: int, deadline_unix_s: float | None) -> dict:
     """Worker-process body of `run_bench_parallel`: settings rebuilt from names and a path."""
     from lishield_guard.config import load_config
 
+    if deadline_unix_s is not None and time.time() > deadline_unix_s:
+        return {"records": [], "n_skipped": len(items)}
     settings = make_settings(names, load_config(config_path))
-    return run_bench(items, settings, repeat=repeat, time_budget_s=time_budget_s)
+    return run_bench(items, settings, repeat=repeat, deadline_unix_s=deadline_unix_s)
 
 
 def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
@@ -282,7 +289,7 @@ def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
     progress : callable, optional
         Wraps an iterable of chunks' image counts (e.g. ``tqdm``-like, updated per chunk).
     time_budget_s : float, optional
-        Per-worker budget (see `run_bench`).
+        Wall-time budget of the whole run (see `run_bench`).
     chunk : int
         Images per task.
 
@@ -296,18 +303,18 @@ def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
 
     cfg = None if config_path is None else str(config_path)
     chunks = [list(items[i:i + chunk]) for i in range(0, len(items), chunk)]
-    t_start = time.perf_counter()
+    deadline = None if time_budget_s is None else time.time() + time_budget_s
     records: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(1, jobs),
                              mp_context=mp.get_context("spawn")) as ex:
         futs = []
         for c in chunks:
-            futs.append(ex.submit(_bench_worker, c, list(names), cfg, repeat, time_budget_s))
+            futs.append(ex.submit(_bench_worker, c, list(names), cfg, repeat, deadline))
         done = progress(futs) if progress else futs
         for fut in done:
             out = fut.result()
             records += out["records"]
-            if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
+            if deadline is not None and time.time() > deadline:
                 for f in futs:
                     f.cancel()
     return {"records": records, "repeat": repeat, "settings": list(names),
@@ -622,10 +629,11 @@ def plot_report(report: dict, out_png: Path) -> Path:
 
     rows = [r for r in report["rows"] if r["error"] is not None]
     fig, ax = plt.subplots(figsize=(7.5, 5))
-    for r in rows:
+    for i, r in enumerate(rows):
         x = r["median_ratio"]
         ax.scatter([x], [r["error"]], s=60, color="C0" if not r["pareto"] else "C3", zorder=3)
-        ax.annotate(r["setting"], (x, r["error"]), textcoords="offset points", xytext=(6, 4))
+        ax.annotate(r["setting"], (x, r["error"]), textcoords="offset points",
+                    xytext=(6, 4 + 11 * (i % 3)), fontsize=9)
         fnr = 1 - r["tpr"]["rate"] if r["tpr"]["rate"] is not None else None
         if fnr is not None:
             ax.scatter([x], [fnr], marker="v", color="0.5", s=25, zorder=2)
@@ -639,6 +647,7 @@ def plot_report(report: dict, out_png: Path) -> Path:
             ys += [ys[-1], r["error"]]
         ax.plot(xs, ys, color="C3", lw=1.5, label="Pareto front", zorder=1)
     ax.scatter([], [], color="C0", label="error = 1 - TPR + FPR")
+    ax.scatter([], [], color="C3", label="on the Pareto front")
     ax.scatter([], [], marker="v", color="0.5", label="1 - TPR")
     ax.scatter([], [], marker="^", color="0.5", label="FPR")
     ax.axvline(1.0, color="0.7", ls=":", lw=1)

@@ -24,7 +24,7 @@ i.e. ``beta.ppf(0.95, k + 1, n - k)`` (= the upper end of a two-sided 90 % Clopp
 interval). With k = 0 it is 1 - 0.05^(1/n), so showing FAR <= t needs
 n >= ln(0.05) / ln(1 - t) clean images with no false alarm: 2995 for t = 1e-3 (n = 2994 gives
 1.0003e-3). The two-sided 95 % interval (``level=0.95`` in `lishield_guard.stats`) is also
-reported; its upper end needs n >= ln(0.025) / ln(1 - t) = 3687 for t = 1e-3.
+reported; its upper end needs n >= ln(0.025) / ln(1 - t) = 3688 for t = 1e-3.
 
 Null model (default profile)
 ----------------------------

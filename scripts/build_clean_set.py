@@ -41,7 +41,7 @@ EXTRA_DOWNSCALES = (1.0, 1.0, 1.5, 2.0, 3.0)
 
 
 def bundled_photos() -> dict[str, np.ndarray]:
-    """Every bundled skimage photo as uint8 (n_rows, n_cols[, 3]); ones needing a download skipped."""
+    """Bundled skimage photos as uint8 (n_rows, n_cols[, 3]); ones needing a download skipped."""
     import skimage.data as sd
 
     out = {}

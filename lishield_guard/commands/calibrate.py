@@ -457,8 +457,8 @@ def _write_report(report: Path, summaries, best, info: dict) -> dict:
     lines += [f"| {k} | {v[0]} | {v[1]} |" for k, v in sorted(info["fa_by_subset"].items())]
     if info["fa_files"]:
         lines += ["", "False-alarm files: " + ", ".join(f"`{f}`" for f in info["fa_files"][:20])]
-    lines += ["", "### Detection by kind of positive", "", "| group | value | detected | n | rate |",
-              "|---|---|---|---|---|"]
+    lines += ["", "### Detection by kind of positive", "",
+              "| group | value | detected | n | rate |", "|---|---|---|---|---|"]
     for k, vals in b.per_group.items():
         for v, d in vals.items():
             lines.append(f"| {k} | {v} | {d['detected']} | {d['n']} | {d['rate']:.3f} |")

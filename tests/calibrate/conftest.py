@@ -21,8 +21,12 @@ def tiny_sets(tmp_path_factory) -> dict[str, Path]:
     subprocess.run([EXE, "synth", "dataset", "--out", str(neg), "--n-neg", "3", "--seed", "6",
                     "--mix", "negatives-only", "--size", "640x480", "--no-progress"],
                    check=True)
-    from tests.scan.conftest import write_images
+    import cv2
+    import numpy as np
 
     noise = root / "noise"
-    write_images(noise, ["a.jpg", "b.jpg", "c.jpg"])
+    noise.mkdir()
+    for i, name in enumerate(["a.jpg", "b.jpg", "c.jpg"]):
+        img = (np.random.default_rng(i).random((240, 320, 3)) * 255).astype(np.uint8)
+        cv2.imwrite(str(noise / name), img, [cv2.IMWRITE_JPEG_QUALITY, 85])
     return {"pos": pos, "neg": neg, "noise": noise, "root": root}

@@ -30,7 +30,7 @@ def test_one_sided_2995_rule():
 
 
 def test_two_sided_needs_more():
-    assert two_sided_upper(0, 3687) < 1e-3 <= two_sided_upper(0, 3686)
+    assert two_sided_upper(0, 3688) < 1e-3 <= two_sided_upper(0, 3687)
 
 
 def test_bound_grows_with_false_alarms_and_edges():
