@@ -63,7 +63,7 @@ import numpy as np
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig
 from lishield_guard.decode import decode
-from lishield_guard.detect import collect_evidence
+from lishield_guard.detect import collect_evidence, fold_fits, spec_planes
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
 
 __all__ = [
@@ -72,6 +72,7 @@ __all__ = [
     "Setting",
     "candidate_table",
     "default_scores",
+    "fold_protected",
     "far_upper_bound",
     "group_labels",
     "image_record",
@@ -276,11 +277,8 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
                 continue
             quiet = _max_sig_frames(planes) < 2
             for si, spec in enumerate(specs):
-                if spec.is_rgb:
-                    chans = {c: planes.get(c, planes.get("L")) for c in spec.channel_names}
-                else:
-                    chans = {"W": planes.get("L")}
-                if any(v is None for v in chans.values()):
+                chans = spec_planes(spec, planes)
+                if chans is None:
                     continue
                 row = table[ci, ai * len(specs) + si]
                 row[IS_RGB], row[VALID] = float(spec.is_rgb), 1.0
@@ -325,7 +323,10 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     decoded = decode(source, limits=config.limits, fast=det.fast_decode,
                      max_rows=det.max_decode_rows)
     evidence = collect_evidence(decoded, config)
-    rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3}
+    folds = fold_fits(evidence, config)
+    rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
+           "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
+                             dtype=float).reshape(-1, 3)}
     if paper_grid is not None:
         t0 = time.perf_counter()
         full = decode(source, limits=config.limits, fast=det.fast_decode, max_rows=0)
@@ -337,7 +338,15 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
 # ----------------------------------------------------------------------------- sweeps
 
 
-def default_scores(tables: np.ndarray, grid: DefaultGrid
+def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
+    """Per image: does any fold fit (rows of rho, rho_lookalike, fold_snr) pass ``det``'s
+    fold thresholds? The fold stage does not depend on the swept tone parameters."""
+    return np.array([bool(((f[:, 0] >= det.fold_min_rho) & (f[:, 2] >= det.fold_min_snr)
+                           & (f[:, 0] - f[:, 1] >= det.fold_min_margin)).any()) if len(f)
+                     else False for f in folds], dtype=bool)
+
+
+def default_scores(tables: np.ndarray, grid: DefaultGrid, fold_ok: np.ndarray | None = None
                    ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
     """Verdicts of every default-profile setting from stacked candidate tables.
 
@@ -347,6 +356,8 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid
         Stacked `candidate_table` outputs.
     grid : DefaultGrid
         The grid the tables were computed for.
+    fold_ok : ndarray of bool, shape (n_images,), optional
+        `fold_protected` of the images: the pattern-folding stage, OR-ed into every setting.
 
     Returns
     -------
@@ -373,7 +384,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid
                 ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
                 ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
                 ("min_tones_rgb", mt_rgb))))
-            prot.append(ok.any(axis=1))
+            prot.append(ok.any(axis=1) | (fold_ok if fold_ok is not None else False))
             hits.append(enough.sum(axis=1))
     if not settings:
         return [], np.zeros((0, n_img), bool), np.zeros((0, n_img)), cand_total

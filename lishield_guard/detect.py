@@ -18,7 +18,8 @@ from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
-__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded"]
+__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fold_fits",
+           "fold_passes", "spec_planes"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 
@@ -180,24 +181,62 @@ def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
                        max_row_rate_hz=det.max_row_rate_hz / row_scale)
 
 
+def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
+                ) -> dict[str, PlaneAnalysis] | None:
+    """The plane analysis carrying each channel of ``spec`` (luma stands in for a colour plane
+    that was not analysed); None when luma itself is missing."""
+    if spec.is_rgb:
+        chans = {c: planes.get(c, planes.get("L")) for c in spec.channel_names}
+    else:
+        chans = {"W": planes.get("L")}
+    return None if any(v is None for v in chans.values()) else chans
+
+
 def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                  ) -> list[tuple[str, SpecMatch]]:
     """Match every spec whose planes are available on one axis: tone tracks, then folding."""
     out = []
     periods: list[float] | None = None
     for pid, spec in specs:
-        if spec.is_rgb:
-            chans = {c: planes.get(c, planes.get("L")) for c in spec.channel_names}
-        else:
-            chans = {"W": planes.get("L")}
-        if any(v is None for v in chans.values()):
+        chans = spec_planes(spec, planes)
+        if chans is None:
             continue
         m = match_spec(spec, chans, det)
         if not m.protected:
             if periods is None:
                 periods = _periods(planes["L"], specs, det)
-            m = _fold_decision(m, spec, chans, periods, det)
+            info = _fold_info(spec, chans, periods, det)
+            if info is not None and fold_passes(info, det):
+                reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
+                          f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
+                          f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
+                m = replace(m, protected=True, reason=reason, fold=info)
+            elif info is not None:
+                m = replace(m, fold=info)
         out.append((pid, m))
+    return out
+
+
+def fold_passes(info: dict, det: DetectorConfig) -> bool:
+    """Whether a fold fit (`fold_fits` entry) is evidence enough for a verdict of protected."""
+    return (info["rho"] >= det.fold_min_rho and info["fold_snr"] >= det.fold_min_snr
+            and info["rho"] - info["rho_lookalike"] >= det.fold_min_margin)
+
+
+def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
+    """Unthresholded fold fits of every spec on every axis (for calibration sweeps)."""
+    det = _scaled(config.detector, evidence.row_scale)
+    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    out = []
+    for axis_name, planes in evidence.axes.items():
+        if "L" not in planes:
+            continue
+        periods = _periods(planes["L"], specs, det)
+        for pid, spec in specs:
+            chans = spec_planes(spec, planes)
+            info = _fold_info(spec, chans, periods, det) if chans else None
+            if info is not None:
+                out.append({"axis": axis_name, "policy": pid, **info})
     return out
 
 
@@ -219,31 +258,22 @@ def _periods(luma: PlaneAnalysis, specs, det: DetectorConfig) -> list[float]:
     return [refine_period(x, p) for p in coarse]
 
 
-def _fold_decision(m: SpecMatch, spec: BarcodeSpec, chans: dict[str, PlaneAnalysis],
-                   periods: list[float], det: DetectorConfig) -> SpecMatch:
-    """Upgrade a tone-track miss to protected when the folded pattern fits the template."""
+def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list[float],
+               det: DetectorConfig) -> dict | None:
+    """Best fold fit of ``spec`` over its channels' planes (mean rho over channels)."""
     if not periods or any(pa.common is None for pa in chans.values()):
-        return m
+        return None
     fits = []
     for c, pa in chans.items():
         fm = fold_match(pa.common.astype(np.float64), pa.noise_var, spec, c,
                         period_range_rows=_period_range_rows(spec, det), periods=periods,
                         refine=False)
         if fm is None:
-            return m
+            return None
         fits.append(fm)
-    rho = float(np.mean([f.rho for f in fits]))
-    rho_alt = float(np.mean([f.rho_lookalike for f in fits]))
-    snr = float(min(f.fold_snr for f in fits))
-    info = {**fits[0].to_dict(), "rho": round(rho, 4), "rho_lookalike": round(rho_alt, 4),
-            "fold_snr": round(snr, 2), "channels": len(fits)}
-    if (rho >= det.fold_min_rho and snr >= det.fold_min_snr
-            and rho - rho_alt >= det.fold_min_margin):
-        reason = (f"the stripes repeat every {fits[0].period_rows:.1f} rows and the folded "
-                  f"pattern fits {spec.name} (rho={rho:.2f}, {fits[0].cycles_f1:.2f} cycles of "
-                  f"f_1 per slot)")
-        return replace(m, protected=True, reason=reason, fold=info)
-    return replace(m, fold=info)
+    return {**fits[0].to_dict(), "rho": round(float(np.mean([f.rho for f in fits])), 4),
+            "rho_lookalike": round(float(np.mean([f.rho_lookalike for f in fits])), 4),
+            "fold_snr": round(float(min(f.fold_snr for f in fits)), 2), "channels": len(fits)}
 
 
 def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:

@@ -79,14 +79,15 @@ def _work(path: str) -> dict:
     st = os.stat(path)
     key = _hash(os.path.abspath(path), st.st_size, st.st_mtime_ns, _W["cfg_key"])
     try:
-        rec, hit = _cached("ev-" + key + "-" + _hash(repr(pgrid)),
+        rec, hit = _cached("ev2-" + key + "-" + _hash(repr(pgrid)),
                            lambda: image_record(path, cfg, paper_grid=pgrid))
         (table, match_ms), _ = _cached("tab-" + key + "-" + _hash(repr(grid)),
                                        lambda: candidate_table(rec["evidence"], cfg, grid))
     except Exception as exc:  # noqa: BLE001 - one bad file never stops calibration
         return {"path": path, "error": f"{type(exc).__name__}: {exc}"}
     return {"path": path, "error": None, "table": table, "match_ms": match_ms,
-            "evidence_ms": rec["evidence_ms"], "paper_peaks": rec["paper_peaks"],
+            "folds": rec["folds"], "evidence_ms": rec["evidence_ms"],
+            "paper_peaks": rec["paper_peaks"],
             "paper_ms": rec["paper_ms"], "paper_decode_ms": rec["paper_decode_ms"],
             "cached": hit}
 
@@ -202,8 +203,10 @@ def calibrate_command(
     if "default" in want:
         tab_c = np.stack([r["table"] for r, _ in ok_c])
         tab_p = np.stack([r["table"] for r, _ in ok_p])
-        s, pc, hc, cc = cal.default_scores(tab_c, grid)
-        _, pp, _, _ = cal.default_scores(tab_p, grid)
+        fold_c = cal.fold_protected([r["folds"] for r, _ in ok_c], base.detector)
+        fold_p = cal.fold_protected([r["folds"] for r, _ in ok_p], base.detector)
+        s, pc, hc, cc = cal.default_scores(tab_c, grid, fold_c)
+        _, pp, _, _ = cal.default_scores(tab_p, grid, fold_p)
         match_ms = np.mean([r["match_ms"] for r, _ in ok_c + ok_p], axis=0)
         n_gate = len(grid.gate_combos())
         settings += s
