@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 
+from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["FoldMatch", "candidate_periods", "fold", "fold_match", "refine_period"]
@@ -167,7 +168,7 @@ def refine_period(x: np.ndarray, period_rows: float, *, span: float = 0.03,
     """
     n_bins = int(min(N_PHASE_BINS, max(12, period_rows // 1)))
     sigma_rows = period_rows / (2 * math.pi * HIGHPASS_CYCLES)
-    xh = x - gaussian_filter1d(x, sigma_rows, mode="reflect")
+    xh = x - gaussian_smooth(x, sigma_rows=sigma_rows)
     best_p, best_f = period_rows, -1.0
     for p in period_rows * np.linspace(1 - span, 1 + span, steps):
         if x.size < MIN_PERIODS * p:
@@ -247,7 +248,7 @@ def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str,
         # the pattern's content lies at >= M / period cycles per row; scene structure below
         # that would only blur the fold
         sigma_rows = period / (2 * math.pi * HIGHPASS_CYCLES)
-        xh = x - gaussian_filter1d(x, sigma_rows, mode="reflect")
+        xh = x - gaussian_smooth(x, sigma_rows=sigma_rows)
         y, counts, within = fold(xh, period, n_bins)
         y = y - y.mean()
         power = float(y @ y)
