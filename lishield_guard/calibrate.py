@@ -346,7 +346,12 @@ def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
                      else False for f in folds], dtype=bool)
 
 
-def default_scores(tables: np.ndarray, grid: DefaultGrid, fold_ok: np.ndarray | None = None
+FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting
+
+
+def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray] | None = None,
+                   det: DetectorConfig | None = None,
+                   fold_min_rho: tuple[float, ...] = FOLD_MIN_RHO
                    ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
     """Verdicts of every default-profile setting from stacked candidate tables.
 
@@ -356,8 +361,11 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, fold_ok: np.ndarray | 
         Stacked `candidate_table` outputs.
     grid : DefaultGrid
         The grid the tables were computed for.
-    fold_ok : ndarray of bool, shape (n_images,), optional
-        `fold_protected` of the images: the pattern-folding stage, OR-ed into every setting.
+    folds : list of ndarray (k, 3), optional
+        Per image, the unthresholded fold fits (rho, rho_lookalike, fold_snr); with ``det``
+        the pattern-folding stage is OR-ed into every setting, for each ``fold_min_rho``.
+    det : DetectorConfig, optional
+        Supplies the other fold thresholds (fold_min_snr, fold_min_margin).
 
     Returns
     -------
@@ -372,6 +380,11 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, fold_ok: np.ndarray | 
     settings, prot, hits = [], [], []
     valid = tables[..., VALID] > 0
     cand_total = valid[:, 0, :].sum(axis=1)
+    fold_variants: list[tuple[tuple, np.ndarray | bool]] = [((), False)]
+    if folds is not None and det is not None:
+        fold_variants = [((("fold_min_rho", r),),
+                          fold_protected(folds, det.replace(fold_min_rho=r)))
+                         for r in fold_min_rho]
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):
         t = tables[:, ci]
         n, pur, sw, ch, rgb = (t[..., N_MATCHED], t[..., PURITY], t[..., SWITCHES],
@@ -380,12 +393,13 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, fold_ok: np.ndarray | 
             need = np.where(rgb, mt_rgb, mt)
             enough = (n >= need) & valid[:, ci]
             ok = enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2))
-            settings.append(Setting("default", (
-                ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
-                ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
-                ("min_tones_rgb", mt_rgb))))
-            prot.append(ok.any(axis=1) | (fold_ok if fold_ok is not None else False))
-            hits.append(enough.sum(axis=1))
+            for fold_params, fold_ok in fold_variants:
+                settings.append(Setting("default", (
+                    ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
+                    ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
+                    ("min_tones_rgb", mt_rgb), *fold_params)))
+                prot.append(ok.any(axis=1) | fold_ok)
+                hits.append(enough.sum(axis=1))
     if not settings:
         return [], np.zeros((0, n_img), bool), np.zeros((0, n_img)), cand_total
     return settings, np.array(prot), np.array(hits, dtype=float), cand_total

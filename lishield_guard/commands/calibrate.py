@@ -203,12 +203,12 @@ def calibrate_command(
     if "default" in want:
         tab_c = np.stack([r["table"] for r, _ in ok_c])
         tab_p = np.stack([r["table"] for r, _ in ok_p])
-        fold_c = cal.fold_protected([r["folds"] for r, _ in ok_c], base.detector)
-        fold_p = cal.fold_protected([r["folds"] for r, _ in ok_p], base.detector)
-        s, pc, hc, cc = cal.default_scores(tab_c, grid, fold_c)
-        _, pp, _, _ = cal.default_scores(tab_p, grid, fold_p)
+        s, pc, hc, cc = cal.default_scores(tab_c, grid, [r["folds"] for r, _ in ok_c],
+                                           base.detector)
+        _, pp, _, _ = cal.default_scores(tab_p, grid, [r["folds"] for r, _ in ok_p],
+                                         base.detector)
         match_ms = np.mean([r["match_ms"] for r, _ in ok_c + ok_p], axis=0)
-        n_gate = len(grid.gate_combos())
+        n_gate = len(grid.gate_combos()) * len(cal.FOLD_MIN_RHO)
         settings += s
         clean_prot.append(pc)
         pos_prot.append(pp)

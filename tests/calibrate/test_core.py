@@ -26,8 +26,8 @@ def test_candidate_table_agrees_with_decide(records):
                            min_occupancy=(0.04,), max_occupancy=(0.8,), min_purity=(0.3, 0.6),
                            min_tones=(2, 3))
     tables = np.stack([cal.candidate_table(r["evidence"], cfg, grid)[0] for r in recs])
-    fold_ok = cal.fold_protected([r["folds"] for r in recs], cfg.detector)
-    settings, prot, _, _ = cal.default_scores(tables, grid, fold_ok)
+    settings, prot, _, _ = cal.default_scores(tables, grid, [r["folds"] for r in recs],
+                                              cfg.detector)
     n_pos = 0
     for s, p in zip(settings, prot, strict=True):
         det = s.apply(cfg.detector)
