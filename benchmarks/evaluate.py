@@ -9,7 +9,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from lishield_guard import DetectorConfig, detect
+from lishield_guard import AppConfig, detect, load_config
 from lishield_guard.stats import clopper_pearson
 
 __all__ = ["clopper_pearson", "kinds", "main"]  # clopper_pearson re-exported for old imports
@@ -41,12 +41,16 @@ def main() -> int:
     ap.add_argument("dataset", type=Path)
     ap.add_argument("--profiles", default="default,paper")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--config", type=Path, default=None,
+                    help="TOML config (default: the shipped lishield_guard/data/default.toml)")
     args = ap.parse_args()
     items = [json.loads(ln) for ln in (args.dataset / "manifest.jsonl").read_text().splitlines()
              if ln.strip()]
+    base = load_config(args.config)
     report = {}
     for profile in args.profiles.split(","):
-        cfg = DetectorConfig(profile=profile)
+        cfg = AppConfig(detector=base.detector.replace(profile=profile), limits=base.limits,
+                        policies=base.policies)
         stats: dict[str, list[int]] = defaultdict(lambda: [0, 0])
         t0 = time.perf_counter()
         for it in items:
