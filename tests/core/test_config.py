@@ -26,7 +26,10 @@ def _write(tmp_path, text: str):
 def test_default_config_loads():
     cfg = default_config()
     assert cfg is default_config()  # cached
-    assert cfg.detector == DetectorConfig()
+    # the shipped thresholds come from `lishield-guard calibrate` (README), not the dataclass
+    assert cfg.detector.profile == "default"
+    assert "written by `lishield-guard calibrate`" in cfg.header
+    assert "target 0.001: met" in cfg.header
     assert [p.id for p in cfg.policies] == ["no-distribution"]
     assert cfg.policies[0].specs == tuple(PRESETS[n] for n in
                                           ("table1-seq1", "table1-seq2", "table1-seq3",
