@@ -265,7 +265,7 @@ def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list
         return None
     fits = []
     for c, pa in chans.items():
-        fm = fold_match(pa.common.astype(np.float64), pa.noise_var, spec, c,
+        fm = fold_match(pa.common.astype(np.float64), spec, c,
                         period_range_rows=_period_range_rows(spec, det), periods=periods,
                         refine=False)
         if fm is None:

@@ -214,7 +214,7 @@ def _templates(spec: BarcodeSpec, channel: str, n_bins: int) -> np.ndarray:
     return out
 
 
-def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str, *,
+def fold_match(x: np.ndarray, spec: BarcodeSpec, channel: str, *,
                period_range_rows: tuple[float, float], periods: list[float] | None = None,
                refine: bool = True) -> FoldMatch | None:
     """Best correlation of the spec's channel template with x folded at candidate periods.
@@ -223,8 +223,6 @@ def fold_match(x: np.ndarray, noise_var: float, spec: BarcodeSpec, channel: str,
     ----------
     x : ndarray of shape (n_rows,)
         Common log-contrast row signal.
-    noise_var : float
-        Noise variance of x per row.
     spec : BarcodeSpec
         Spec whose ``channel`` template is fitted.
     period_range_rows : (float, float)

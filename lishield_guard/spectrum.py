@@ -93,8 +93,7 @@ class Track:
 class PlaneAnalysis:
     """Frequency tracks of one plane along one axis, plus what was skipped.
 
-    ``common`` is the common log-contrast row signal (n_rows,) and ``noise_var`` the variance
-    of its noise per row (from the inter-block residual), used by pattern folding.
+    ``common`` is the common log-contrast row signal (n_rows,), used by pattern folding.
     """
 
     n_rows: int
@@ -102,7 +101,6 @@ class PlaneAnalysis:
     tracks: tuple[Track, ...]
     skipped: tuple[str, ...]
     common: np.ndarray | None = None
-    noise_var: float = 0.0
 
     @property
     def max_significant_fraction(self) -> float:
@@ -168,9 +166,7 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         if t_lo >= hi:
             continue
         tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale))
-    noise_var = float((resid ** 2).sum() * noise_scale / n_rows)
-    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32),
-                         noise_var)
+    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32))
 
 
 def _frames(x: np.ndarray, w: int, hop: int) -> np.ndarray:
