@@ -12,7 +12,8 @@ from pathlib import Path
 from lishield_guard import AppConfig, detect, load_config
 from lishield_guard.stats import clopper_pearson
 
-__all__ = ["clopper_pearson", "kinds", "main"]  # clopper_pearson re-exported for old imports
+# clopper_pearson re-exported for old imports
+__all__ = ["clopper_pearson", "decided_by", "kinds", "main"]
 
 
 def kinds(item: dict) -> list[str]:
@@ -35,6 +36,16 @@ def kinds(item: dict) -> list[str]:
     return out
 
 
+def decided_by(verdict) -> str:
+    """Which default-profile stage flagged an image: tone tracks, folding or the period sweep."""
+    best = verdict.evidence.get("best") or {}
+    if best.get("sweep") and "tiled every" in str(verdict.evidence.get("reason")):
+        return "sweep"
+    if best.get("fold") and "repeat every" in str(verdict.evidence.get("reason")):
+        return "fold"
+    return "tones"
+
+
 def main() -> int:
     """Run every profile over DIR/manifest.jsonl and print the table (and --json)."""
     ap = argparse.ArgumentParser(description=__doc__)
@@ -55,7 +66,10 @@ def main() -> int:
         t0 = time.perf_counter()
         for it in items:
             v = detect(args.dataset / it["file"], cfg)
-            for k in kinds(it) + (["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]):
+            extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]
+            if v.protected and profile == "default":
+                extra.append(f"decided-by:{decided_by(v)}:{'pos' if it['label'] else 'neg'}")
+            for k in kinds(it) + extra:
                 stats[k][0] += int(v.protected)
                 stats[k][1] += 1
         dt = time.perf_counter() - t0

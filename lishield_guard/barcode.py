@@ -62,12 +62,13 @@ class SpecMatch:
     protected: bool
     reason: str
     fold: dict | None = None
+    sweep: dict | None = None
 
     @property
     def score(self) -> float:
         """Evidence strength in [0, 1]: purity times the fraction of required tones found."""
-        if self.fold is not None and self.protected:
-            return float(self.fold["rho"])
+        if self.protected and (self.fold or self.sweep):
+            return float((self.fold if self.sweep is None else self.sweep)["rho"])
         if self.required <= 0:
             return 0.0
         return float(min(1.0, self.n_matched / self.required) * min(1.0, self.purity))
@@ -80,7 +81,8 @@ class SpecMatch:
                 "occupancy": {c: [round(o, 4) for o in v] for c, v in self.occupancy.items()},
                 "matched_hz": self.matched, "n_matched": self.n_matched,
                 "required": self.required, "purity": round(self.purity, 4),
-                "switches": self.switches, "reason": self.reason, "fold": self.fold}
+                "switches": self.switches, "reason": self.reason, "fold": self.fold,
+                "sweep": self.sweep}
 
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:

@@ -63,7 +63,7 @@ import numpy as np
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig
 from lishield_guard.decode import decode
-from lishield_guard.detect import collect_evidence, fold_fits, spec_planes
+from lishield_guard.detect import collect_evidence, fold_fits, spec_planes, sweep_fits
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
 
 __all__ = [
@@ -73,6 +73,7 @@ __all__ = [
     "candidate_table",
     "default_scores",
     "fold_protected",
+    "sweep_protected",
     "far_upper_bound",
     "group_labels",
     "image_record",
@@ -161,6 +162,14 @@ class DefaultGrid:
     min_purity: tuple[float, ...] = (0.3, 0.5, 0.7)
     min_tones: tuple[int, ...] = (2, 3)
     min_tones_rgb: tuple[int, ...] = (3,)
+    sweep_min_rho: tuple[float, ...] = (0.7, 0.8, 0.9)
+    sweep_min_margin: tuple[float, ...] = (0.2, 0.25, 0.3)
+    sweep_min_coherence: tuple[float, ...] = (3.0, 10.0)
+
+    def sweep_combos(self) -> list[tuple[float, float, float]]:
+        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence) of the period sweep stage."""
+        return list(itertools.product(self.sweep_min_rho, self.sweep_min_margin,
+                                      self.sweep_min_coherence))
 
     def match_combos(self) -> list[tuple[float, float, float, float]]:
         """(peak_false_prob, tone_rel_tol, min_occupancy, max_occupancy): each needs matching."""
@@ -324,9 +333,12 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
                      max_rows=det.max_decode_rows)
     evidence = collect_evidence(decoded, config)
     folds = fold_fits(evidence, config)
+    sweeps = sweep_fits(evidence, config) if det.period_sweep else []
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
            "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
-                             dtype=float).reshape(-1, 3)}
+                             dtype=float).reshape(-1, 3),
+           "sweeps": np.array([[f["rho"], f["rho_lookalike"], f["coherence_t"]]
+                               for f in sweeps], dtype=float).reshape(-1, 3)}
     if paper_grid is not None:
         t0 = time.perf_counter()
         full = decode(source, limits=config.limits, fast=det.fast_decode, max_rows=0)
@@ -346,12 +358,22 @@ def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
                      else False for f in folds], dtype=bool)
 
 
+def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
+    """Per image: does any period-sweep fit (rows of rho, rho_lookalike, coherence_t) pass
+    ``det``'s sweep thresholds?"""
+    return np.array([bool(((f[:, 0] >= det.sweep_min_rho)
+                           & (f[:, 0] - f[:, 1] >= det.sweep_min_margin)
+                           & (f[:, 2] >= det.sweep_min_coherence)).any()) if len(f)
+                     else False for f in sweeps], dtype=bool)
+
+
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting
 
 
 def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray] | None = None,
                    det: DetectorConfig | None = None,
-                   fold_min_rho: tuple[float, ...] = FOLD_MIN_RHO
+                   fold_min_rho: tuple[float, ...] = FOLD_MIN_RHO,
+                   sweeps: list[np.ndarray] | None = None
                    ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
     """Verdicts of every default-profile setting from stacked candidate tables.
 
@@ -366,6 +388,10 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         the pattern-folding stage is OR-ed into every setting, for each ``fold_min_rho``.
     det : DetectorConfig, optional
         Supplies the other fold thresholds (fold_min_snr, fold_min_margin).
+    sweeps : list of ndarray (k, 3), optional
+        Per image, the unthresholded period-sweep fits (rho, rho_lookalike, coherence_t); with
+        ``det`` (and ``det.period_sweep``) that stage is OR-ed in for every
+        ``grid.sweep_combos()``.
 
     Returns
     -------
@@ -385,6 +411,15 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         fold_variants = [((("fold_min_rho", r),),
                           fold_protected(folds, det.replace(fold_min_rho=r)))
                          for r in fold_min_rho]
+    if sweeps is not None and det is not None and det.period_sweep:
+        sweep_variants = [((("sweep_min_rho", r), ("sweep_min_margin", mg),
+                            ("sweep_min_coherence", t)),
+                           sweep_protected(sweeps, det.replace(sweep_min_rho=r,
+                                                               sweep_min_margin=mg,
+                                                               sweep_min_coherence=t)))
+                          for r, mg, t in grid.sweep_combos()]
+        fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants
+                         for sp, so in sweep_variants]
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):
         t = tables[:, ci]
         n, pur, sw, ch, rgb = (t[..., N_MATCHED], t[..., PURITY], t[..., SWITCHES],

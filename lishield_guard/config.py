@@ -86,6 +86,17 @@ class DetectorConfig:
     fold_min_margin : float
         Pattern folding: the spec's template must beat the best stationary look-alike (k equal
         square or sine cycles per period: PWM, mains, periodic texture) by this much rho.
+    period_sweep : bool
+        When folding finds nothing, slide each spec's template over the frame at every
+        possible period (fold.sweep_match): catches barcodes whose frame holds under two
+        pattern periods, at some cost in time.
+    sweep_min_rho : float
+        Period sweep: smallest normalised correlation of the tiled template with the rows.
+    sweep_min_margin : float
+        Period sweep: the template must beat the best stationary look-alike by this much rho.
+    sweep_min_coherence : float
+        Period sweep: t statistic of the template's amplitude across column blocks (the LED
+        adds the same log contrast to every block; scene structure does not).
     fast_decode : bool
         Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
         False decodes full colour with Pillow first (the reference the fast path is measured
@@ -122,6 +133,10 @@ class DetectorConfig:
     fold_min_rho: float = 0.85
     fold_min_snr: float = 30.0
     fold_min_margin: float = 0.05
+    period_sweep: bool = True
+    sweep_min_rho: float = 0.9
+    sweep_min_margin: float = 0.1
+    sweep_min_coherence: float = 10.0
     fast_decode: bool = True
     max_decode_rows: int = 1536
 
@@ -149,6 +164,10 @@ class DetectorConfig:
         if not 0 <= self.min_occupancy < self.max_occupancy <= 1:
             raise ConfigError(f"need 0 <= min_occupancy={self.min_occupancy!r} < "
                               f"max_occupancy={self.max_occupancy!r} <= 1")
+        for name in ("fold_min_rho", "sweep_min_rho", "sweep_min_margin"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and -1 <= v <= 2):
+                raise ConfigError(f"need {name} in [-1, 2], got {name}={v!r}")
         if not 0 <= self.min_purity <= 1:
             raise ConfigError(f"need 0 <= min_purity <= 1, got {self.min_purity!r}")
         for name in ("ratio_tol", "tone_rel_tol", "gamma", "nominal_row_rate_hz"):

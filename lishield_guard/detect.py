@@ -11,7 +11,7 @@ import numpy as np
 from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig, default_config
 from lishield_guard.decode import Decoded, decode
-from lishield_guard.fold import candidate_periods, fold_match, refine_period
+from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles
 from lishield_guard.spec import BarcodeSpec
@@ -19,7 +19,7 @@ from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
 __all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fold_fits",
-           "fold_passes", "spec_planes"]
+           "fold_passes", "spec_planes", "sweep_fits", "sweep_passes"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 
@@ -197,6 +197,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     """Match every spec whose planes are available on one axis: tone tracks, then folding."""
     out = []
     periods: list[float] | None = None
+    sweeps: dict[str, list[dict]] | None = None
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
         if chans is None:
@@ -213,7 +214,67 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 m = replace(m, protected=True, reason=reason, fold=info)
             elif info is not None:
                 m = replace(m, fold=info)
+        if not m.protected and det.period_sweep:
+            if sweeps is None:
+                sweeps = _axis_sweeps(planes, specs, det)
+            fits = sweeps[spec.name]
+            passing = [f for f in fits if sweep_passes(f, det)]
+            sw = max(passing or fits, key=lambda f: f["rho"] - f["rho_lookalike"], default=None)
+            if passing:
+                reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
+                          f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
+                          f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
+                          f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
+                          f"block (t={sw['coherence_t']:.1f})")
+                m = replace(m, protected=True, reason=reason, sweep=sw)
+            elif sw is not None:
+                m = replace(m, sweep=sw)
         out.append((pid, m))
+    return out
+
+
+def sweep_passes(info: dict, det: DetectorConfig) -> bool:
+    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected."""
+    return (info["rho"] >= det.sweep_min_rho
+            and info["rho"] - info["rho_lookalike"] >= det.sweep_min_margin
+            and info["coherence_t"] >= det.sweep_min_coherence)
+
+
+def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
+                 ) -> dict[str, list[dict]]:
+    """Period-sweep fits of every spec on one axis, one per channel plane (spec name -> fits).
+
+    Specs fitted on the same plane share one period grid. Each channel is judged on its own:
+    the exposure attack or a long exposure can flatten a colour's tones, and one channel
+    fitted the way the spec says is the evidence.
+    """
+    by_plane: dict[int, tuple[PlaneAnalysis, list]] = {}
+    for _, spec in specs:
+        chans = spec_planes(spec, planes)
+        for c, pa in (chans or {}).items():
+            if pa.blocks is not None:
+                by_plane.setdefault(id(pa), (pa, []))[1].append((spec, c))
+    scale = scale_range_cpr_per_hz(det)
+    out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
+    for pa, targets in by_plane.values():
+        fits = sweep_match(pa.blocks, targets, scale_range_cpr_per_hz=scale,
+                           period_range_rows=[_period_range_rows(s, det) for s, _ in targets])
+        for (spec, c), sm in zip(targets, fits, strict=True):
+            if sm is not None:
+                out[spec.name].append({**sm.to_dict(), "channel": c})
+    return out
+
+
+def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
+    """Unthresholded period-sweep fits of every spec on every axis (for calibration sweeps)."""
+    det = _scaled(config.detector, evidence.row_scale)
+    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    out = []
+    for axis_name, planes in evidence.axes.items():
+        sweeps = _axis_sweeps(planes, specs, det)
+        for pid, spec in specs:
+            for info in sweeps[spec.name]:
+                out.append({"axis": axis_name, "policy": pid, **info})
     return out
 
 
@@ -349,7 +410,8 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
         with timer("match"):
             found = _decide_axis(planes, mono, det)
         if rgb and not any(m.protected for _, m in found):
-            if planes["L"].max_significant_fraction < det.min_occupancy:
+            if (planes["L"].max_significant_fraction < det.min_occupancy
+                    and not det.period_sweep):
                 skipped.append(f"{name}: colour planes (no significant stripes in luma)")
             else:
                 if decoded.is_color:

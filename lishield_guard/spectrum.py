@@ -93,7 +93,9 @@ class Track:
 class PlaneAnalysis:
     """Frequency tracks of one plane along one axis, plus what was skipped.
 
-    ``common`` is the common log-contrast row signal (n_rows,), used by pattern folding.
+    ``common`` is the common log-contrast row signal (n_rows,), used by pattern folding;
+    ``blocks`` the log contrast of each usable column block (n_blocks, n_rows), used by the
+    period sweep's coherence test.
     """
 
     n_rows: int
@@ -101,6 +103,7 @@ class PlaneAnalysis:
     tracks: tuple[Track, ...]
     skipped: tuple[str, ...]
     common: np.ndarray | None = None
+    blocks: np.ndarray | None = None
 
     @property
     def max_significant_fraction(self) -> float:
@@ -166,7 +169,8 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         if t_lo >= hi:
             continue
         tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale))
-    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32))
+    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32),
+                         contrast.astype(np.float32))
 
 
 def _frames(x: np.ndarray, w: int, hop: int) -> np.ndarray:

@@ -47,6 +47,7 @@ def _hash(*parts) -> str:
 
 # --- worker side (module-level for pickling)
 _W: dict = {}
+EVIDENCE_PREFIX = "ev3-"  # bump when image_record's contents change
 
 
 def _init_worker(cfg, grid, paper_grid, cache_dir: str | None) -> None:
@@ -79,14 +80,14 @@ def _work(path: str) -> dict:
     st = os.stat(path)
     key = _hash(os.path.abspath(path), st.st_size, st.st_mtime_ns, _W["cfg_key"])
     try:
-        rec, hit = _cached("ev2-" + key + "-" + _hash(repr(pgrid)),
+        rec, hit = _cached(EVIDENCE_PREFIX + key + "-" + _hash(repr(pgrid)),
                            lambda: image_record(path, cfg, paper_grid=pgrid))
         (table, match_ms), _ = _cached("tab-" + key + "-" + _hash(repr(grid)),
                                        lambda: candidate_table(rec["evidence"], cfg, grid))
     except Exception as exc:  # noqa: BLE001 - one bad file never stops calibration
         return {"path": path, "error": f"{type(exc).__name__}: {exc}"}
     return {"path": path, "error": None, "table": table, "match_ms": match_ms,
-            "folds": rec["folds"], "evidence_ms": rec["evidence_ms"],
+            "folds": rec["folds"], "sweeps": rec["sweeps"], "evidence_ms": rec["evidence_ms"],
             "paper_peaks": rec["paper_peaks"],
             "paper_ms": rec["paper_ms"], "paper_decode_ms": rec["paper_decode_ms"],
             "cached": hit}
@@ -99,7 +100,7 @@ def _null_work(args) -> dict:
     cfg = _W["cfg"]
     st = os.stat(path)
     key = _hash(os.path.abspath(path), st.st_size, st.st_mtime_ns, _W["cfg_key"])
-    rec, _ = _cached("ev-" + key + "-" + _hash(repr(_W["paper_grid"])), lambda: None)
+    rec, _ = _cached(EVIDENCE_PREFIX + key + "-" + _hash(repr(_W["paper_grid"])), lambda: None)
     if rec is None:
         return {}
     app = type(cfg)(detector=det, limits=cfg.limits, policies=cfg.policies)
@@ -204,11 +205,13 @@ def calibrate_command(
         tab_c = np.stack([r["table"] for r, _ in ok_c])
         tab_p = np.stack([r["table"] for r, _ in ok_p])
         s, pc, hc, cc = cal.default_scores(tab_c, grid, [r["folds"] for r, _ in ok_c],
-                                           base.detector)
+                                           base.detector,
+                                           sweeps=[r["sweeps"] for r, _ in ok_c])
         _, pp, _, _ = cal.default_scores(tab_p, grid, [r["folds"] for r, _ in ok_p],
-                                         base.detector)
+                                         base.detector,
+                                         sweeps=[r["sweeps"] for r, _ in ok_p])
         match_ms = np.mean([r["match_ms"] for r, _ in ok_c + ok_p], axis=0)
-        n_gate = len(grid.gate_combos()) * len(cal.FOLD_MIN_RHO)
+        n_gate = len(s) // len(grid.match_combos())
         settings += s
         clean_prot.append(pc)
         pos_prot.append(pp)

@@ -77,6 +77,11 @@ def _describe(v, label: str, *, explain: bool) -> str:
                 lines.append(f"    {ch}: matched {tones}")
             lines.append(f"    purity {best.get('purity')}  switches {best.get('switches')}"
                          f"  occupancy {best.get('occupancy')}")
+            for stage in ("fold", "sweep"):  # template fits: folded, and tiled over the frame
+                info = best.get(stage)
+                if info:
+                    lines.append(f"    {stage}: " + ", ".join(
+                        f"{k} {v}" for k, v in info.items() if k != "spec"))
             for c in ev.get("candidates", []):
                 lines.append(f"    candidate {c.get('axis')}/{c.get('spec')}: "
                              f"{c.get('n_matched')}/{c.get('required')} ({c.get('reason')})")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from lishield_guard.commands.calibrate import EVIDENCE_PREFIX
 from lishield_guard.config import load_config
 
 EXE = str(Path(sys.executable).with_name("lishield-guard"))
@@ -36,7 +37,7 @@ def test_command_writes_config_and_report(calibrated):
     for name in ("summary.md", "roc.png", "heatmaps.png", "detection_by_kind.png",
                  "settings.jsonl"):
         assert (rep / name).stat().st_size > 0, name
-    assert list((rep / "cache").glob("ev-*.pkl"))
+    assert list((rep / "cache").glob(f"{EVIDENCE_PREFIX}*.pkl"))
     assert "9 images from cache" in (rep / "summary.md").read_text()  # second run
     summary = (rep / "summary.md").read_text()
     assert "Chosen setting" in summary and "Null model" in summary

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from lishield_guard import PRESETS, DetectorConfig, Verdict, detect
+from lishield_guard import PRESETS, DetectorConfig, Verdict, default_config, detect
 
 PAPER = DetectorConfig(profile="paper")
 
@@ -20,6 +20,22 @@ def test_default_profile_finds_mono_barcodes(make_led_image, name, switching_hz)
     assert v.protected, v.evidence["reason"]
     assert v.policy == "no-distribution"
     assert v.matches >= v.required
+
+
+@pytest.mark.parametrize("name, switching_hz, row_rate_hz", [
+    ("table1-seq1", 300.0, 100_000.0), ("table1-seq1", 260.0, 80_000.0),
+])
+def test_period_sweep_finds_a_frame_under_two_periods(make_led_image, name, switching_hz,
+                                                       row_rate_hz):
+    spec = PRESETS[name]
+    assert 1080 / (3 / switching_hz * row_rate_hz) < 1.5  # too few periods to fold on
+    img = make_led_image(spec, switching_hz=switching_hz, row_rate_hz=row_rate_hz)
+    v = detect(img)
+    assert v.protected, v.evidence["reason"]
+    sweep = v.evidence["best"]["sweep"]
+    assert sweep["spec"] == name and "tiled every" in v.evidence["reason"]
+    assert abs(sweep["switching_hz"] / switching_hz - 1) < 0.1
+    assert not detect(img, default_config().detector.replace(period_sweep=False)).protected
 
 
 def test_rotated_pixels_still_detected(make_led_image):
