@@ -385,6 +385,19 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
                    score=m.score)
 
 
+def _luma_shows_stripes(luma: PlaneAnalysis, found, det: DetectorConfig) -> bool:
+    """Whether luma holds anything an RGB barcode could be (else colour planes are skipped).
+
+    Luma carries every colour's stripes: either its tone tracks hold significant peaks, or a
+    period-sweep template fits it with the same amplitude in every column block.
+    """
+    if luma.max_significant_fraction >= det.min_occupancy:
+        return True
+    return det.period_sweep and any(
+        m.sweep is not None and m.sweep["rho"] >= det.sweep_min_rho
+        and m.sweep["coherence_t"] >= det.sweep_min_coherence for _, m in found)
+
+
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
     det = _scaled(config.detector, decoded.row_scale)
     skipped: list[str] = []
@@ -410,9 +423,9 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
         with timer("match"):
             found = _decide_axis(planes, mono, det)
         if rgb and not any(m.protected for _, m in found):
-            if (planes["L"].max_significant_fraction < det.min_occupancy
-                    and not det.period_sweep):
-                skipped.append(f"{name}: colour planes (no significant stripes in luma)")
+            if not _luma_shows_stripes(planes["L"], found, det):
+                skipped.append(f"{name}: colour planes (no significant or coherent stripes "
+                               f"in luma)")
             else:
                 if decoded.is_color:
                     with timer("profile_color"):
