@@ -168,6 +168,10 @@ class DetectorConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and -1 <= v <= 2):
                 raise ConfigError(f"need {name} in [-1, 2], got {name}={v!r}")
+        for name in ("fold_min_snr", "sweep_min_coherence"):
+            v = getattr(self, name)
+            if not math.isfinite(v):
+                raise ConfigError(f"need a finite {name}, got {name}={v!r}")
         if not 0 <= self.min_purity <= 1:
             raise ConfigError(f"need 0 <= min_purity <= 1, got {self.min_purity!r}")
         for name in ("ratio_tol", "tone_rel_tol", "gamma", "nominal_row_rate_hz"):

@@ -194,7 +194,8 @@ def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
 
 def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                  ) -> list[tuple[str, SpecMatch]]:
-    """Match every spec whose planes are available on one axis: tone tracks, then folding."""
+    """Match every spec whose planes are available on one axis: tone tracks, then folding,
+    then the period sweep (computed once per axis for all specs, when first needed)."""
     out = []
     periods: list[float] | None = None
     sweeps: dict[str, list[dict]] | None = None
@@ -392,6 +393,8 @@ def _luma_shows_stripes(luma: PlaneAnalysis, found, det: DetectorConfig) -> bool
     period-sweep template fits it with the same amplitude in every column block.
     """
     if luma.max_significant_fraction >= det.min_occupancy:
+        return True
+    if det.period_sweep and not found:  # no monochrome spec swept luma: nothing to go on
         return True
     return det.period_sweep and any(
         m.sweep is not None and m.sweep["rho"] >= det.sweep_min_rho

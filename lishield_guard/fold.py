@@ -287,6 +287,8 @@ SWEEP_CYCLE_STEP = 0.08  # c_1 grid step: a slot with c cycles drifts < 1/8 cycl
 SWEEP_MAX_PERIODS = 4.0  # the sweep covers periods >= n_rows / this (folding covers the rest)
 SWEEP_DRIFT = 1 / 12  # grid step: the last row's phase moves <= this fraction of a period
 SWEEP_REFINE_STEPS = 7  # around each target's best grid period, within +- half a step
+SWEEP_MIN_ROWS = 32  # fewer rows hold no pattern worth tiling
+VAR_FLOOR = 1e-3  # template variance over rows, relative to its energy, below which rho is 0
 
 
 @dataclass(frozen=True)
@@ -383,8 +385,12 @@ class _Phased:
         num = scipy.fft.irfft(spec * self.s_conj, n=N_PHASE_BINS, axis=-1)
         m1 = scipy.fft.irfft(spec * self.c_conj, n=N_PHASE_BINS, axis=-1)
         m2 = scipy.fft.irfft(spec_sq * self.c_conj, n=N_PHASE_BINS, axis=-1)
-        var = np.maximum(m2 - m1 * m1 / self.n_rows, 1e-30)
-        return num / np.sqrt(var * self.energy)
+        var = m2 - m1 * m1 / self.n_rows
+        # a template (nearly) constant on the bins the rows fill has no shape to correlate;
+        # in single precision its variance is rounding noise, so such fits count as rho 0
+        flat = var <= VAR_FLOOR * np.maximum(m2, 1e-30)
+        rho = np.where(flat, 0.0, num / np.sqrt(np.where(flat, 1.0, var) * self.energy))
+        return np.clip(rho, -1.0, 1.0)  # a correlation; beyond +-1 is rounding
 
 
 class _Target:
@@ -447,7 +453,7 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
     blocks = np.asarray(blocks, dtype=np.float64)
     x = blocks.mean(axis=0)
     n = x.size
-    if n < 8 or blocks.shape[0] < 2 or not targets:
+    if n < SWEEP_MIN_ROWS or blocks.shape[0] < 2 or not targets:
         return [None] * len(targets)
     tg = [_Target(spec, ch, pr, scale_range_cpr_per_hz, n)
           for (spec, ch), pr in zip(targets, period_range_rows, strict=True)]
@@ -470,7 +476,7 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         p0 = t.best[1]
         half = 0.5 * p0 * max(SWEEP_DRIFT * p0 / n, 0.002)
         for p in np.linspace(p0 - half, p0 + half, SWEEP_REFINE_STEPS):
-            if p != p0:
+            if p != p0 and t.lo <= p <= t.hi:
                 t.fit(_Phased(highpassed, float(p), n))
         rho, period, (ci, ei, shift) = t.best
         ph = _Phased(highpassed, period, n)

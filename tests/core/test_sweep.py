@@ -110,3 +110,20 @@ def test_impossible_period_range_gives_none(rng):
     out = sweep_match(blocks, [(PRESETS["table1-seq1"], "W")], period_range_rows=[(8.0, 100.0)],
                       scale_range_cpr_per_hz=SCALE)
     assert out == [None]  # periods under n_rows / 4 are folding's job
+
+
+@pytest.mark.parametrize("n_rows", [64, 128, 300])
+def test_small_frames_give_bounded_correlations(rng, n_rows):
+    """Sparse phase bins once made float32 variances cancel to ~0 and rho explode."""
+    for name in ("table1-seq1", "table1-seq3"):
+        m = sweep_match(rng.normal(size=(8, n_rows)), [(PRESETS[name], "W")],
+                        period_range_rows=[(4.0, 1500.0)], scale_range_cpr_per_hz=SCALE)[0]
+        assert m is not None and -1 <= m.rho_lookalike <= 1 and -1 <= m.rho <= 1, m
+
+
+def test_refinement_stays_inside_the_period_range(rng):
+    """Periods far above the frame once refined to negative periods (a crash in detect)."""
+    from lishield_guard import DetectorConfig, detect
+
+    img = rng.integers(0, 256, (64, 200), dtype=np.uint8)
+    assert not detect(img, DetectorConfig(max_row_rate_hz=200_000.0)).protected
