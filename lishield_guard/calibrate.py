@@ -350,21 +350,26 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
 # ----------------------------------------------------------------------------- sweeps
 
 
+def _any_fit_passes(fits: list[np.ndarray], passes) -> np.ndarray:
+    """Per image: does any row of its fit table (k, 3) satisfy ``passes(col0, col1, col2)``?"""
+    return np.array([bool(passes(f[:, 0], f[:, 1], f[:, 2]).any()) if len(f) else False
+                     for f in fits], dtype=bool)
+
+
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
     """Per image: does any fold fit (rows of rho, rho_lookalike, fold_snr) pass ``det``'s
     fold thresholds? The fold stage does not depend on the swept tone parameters."""
-    return np.array([bool(((f[:, 0] >= det.fold_min_rho) & (f[:, 2] >= det.fold_min_snr)
-                           & (f[:, 0] - f[:, 1] >= det.fold_min_margin)).any()) if len(f)
-                     else False for f in folds], dtype=bool)
+    return _any_fit_passes(folds, lambda rho, alt, snr: (
+        (rho >= det.fold_min_rho) & (snr >= det.fold_min_snr)
+        & (rho - alt >= det.fold_min_margin)))
 
 
 def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
     """Per image: does any period-sweep fit (rows of rho, rho_lookalike, coherence_t) pass
     ``det``'s sweep thresholds?"""
-    return np.array([bool(((f[:, 0] >= det.sweep_min_rho)
-                           & (f[:, 0] - f[:, 1] >= det.sweep_min_margin)
-                           & (f[:, 2] >= det.sweep_min_coherence)).any()) if len(f)
-                     else False for f in sweeps], dtype=bool)
+    return _any_fit_passes(sweeps, lambda rho, alt, t: (
+        (rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
+        & (t >= det.sweep_min_coherence)))
 
 
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting

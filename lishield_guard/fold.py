@@ -85,6 +85,15 @@ def candidate_periods(x: np.ndarray, *, min_rows: float, max_rows: float, n: int
     return out
 
 
+def _phase_sums(xh: np.ndarray, period_rows: float, n_bins: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per phase bin of a period: the sum of xh and the row count; and each row's bin."""
+    phase = (np.arange(xh.size) / period_rows) % 1.0
+    b = np.minimum((phase * n_bins).astype(int), n_bins - 1)
+    return (np.bincount(b, weights=xh, minlength=n_bins),
+            np.bincount(b, minlength=n_bins).astype(float), b)
+
+
 def fold(x: np.ndarray, period_rows: float, n_bins: int = N_PHASE_BINS
          ) -> tuple[np.ndarray, np.ndarray, float]:
     """Fold x at a period.
@@ -98,10 +107,7 @@ def fold(x: np.ndarray, period_rows: float, n_bins: int = N_PHASE_BINS
     within_var : float
         Variance of rows around their bin's mean (what does not repeat), per row.
     """
-    phase = (np.arange(x.size) / period_rows) % 1.0
-    b = np.minimum((phase * n_bins).astype(int), n_bins - 1)
-    counts = np.bincount(b, minlength=n_bins).astype(float)
-    sums = np.bincount(b, weights=x, minlength=n_bins)
+    sums, counts, b = _phase_sums(x, period_rows, n_bins)
     means = np.divide(sums, counts, out=np.zeros(n_bins), where=counts > 0)
     dof = max(x.size - int((counts > 0).sum()), 1)
     within = float(((x - means[b]) ** 2).sum()) / dof
@@ -358,14 +364,6 @@ def _highpass_fn(x: np.ndarray):
     return highpassed
 
 
-def _phase_sums(xh: np.ndarray, period_rows: float, n_bins: int
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    phase = (np.arange(xh.size) / period_rows) % 1.0
-    b = np.minimum((phase * n_bins).astype(int), n_bins - 1)
-    return (np.bincount(b, weights=xh, minlength=n_bins),
-            np.bincount(b, minlength=n_bins).astype(float), b)
-
-
 class _Phased:
     """One period's view of the rows: high-passed energy and phase-bin sums/counts spectra."""
 
@@ -374,7 +372,7 @@ class _Phased:
         xh = xh - xh.mean()
         self.period_rows = period_rows
         self.energy = float(xh @ xh)
-        self.sums, self.counts, _ = _phase_sums(xh, period_rows, N_PHASE_BINS)
+        self.sums, self.counts, self.bins = _phase_sums(xh, period_rows, N_PHASE_BINS)
         self.s_conj = np.conj(np.fft.rfft(self.sums)).astype(np.complex64)
         self.c_conj = np.conj(np.fft.rfft(self.counts)).astype(np.complex64)
         self.n_rows = n_rows
@@ -406,24 +404,22 @@ class _Target:
         bank = _templates(spec, channel, N_PHASE_BINS, tuple(self.cycles.tolist()),
                           SWEEP_EXPOSURES)
         self.prep = _prepared(bank, N_PHASE_BINS)
-        self.best: tuple | None = None  # (rho, period, (c index, exposure index, shift))
+        self.best: tuple | None = None  # (rho, _Phased, (c index, exposure index, shift))
 
-    def fit(self, ph: _Phased) -> tuple | None:
-        """Best (rho, period, indices) at one period, or None when the period is impossible."""
+    def fit(self, ph: _Phased) -> None:
+        """Fit every template at one period (if possible there); keep the best so far."""
         p = ph.period_rows
         if not self.lo <= p <= self.hi or not ph.energy > 0:
-            return None
+            return
         m, f1 = self.spec.n_tones, self.spec.f1_hz
         i0 = int(np.searchsorted(self.cycles, f1 * self.scale[0] * p / m))
         i1 = int(np.searchsorted(self.cycles, f1 * self.scale[1] * p / m, side="right"))
         if i1 <= i0:
-            return None
+            return
         rho = ph.rho(tuple(a[i0:i1] for a in self.prep))
         k = np.unravel_index(int(np.argmax(rho)), rho.shape)
-        out = (float(rho[k]), p, (i0 + int(k[0]), int(k[1]), int(k[2])))
-        if self.best is None or out[0] > self.best[0]:
-            self.best = out
-        return out
+        if self.best is None or float(rho[k]) > self.best[0]:
+            self.best = (float(rho[k]), ph, (i0 + int(k[0]), int(k[1]), int(k[2])))
 
 
 def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
@@ -473,19 +469,18 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         if t.best is None:
             out.append(None)
             continue
-        p0 = t.best[1]
+        p0 = t.best[1].period_rows
         half = 0.5 * p0 * max(SWEEP_DRIFT * p0 / n, 0.002)
         for p in np.linspace(p0 - half, p0 + half, SWEEP_REFINE_STEPS):
             if p != p0 and t.lo <= p <= t.hi:
                 t.fit(_Phased(highpassed, float(p), n))
-        rho, period, (ci, ei, shift) = t.best
-        ph = _Phased(highpassed, period, n)
+        rho, ph, (ci, ei, shift) = t.best
+        period = ph.period_rows
         rho_alt = float(ph.rho(_prepared(_lookalike_templates(N_PHASE_BINS), N_PHASE_BINS))
                         .max())
         # the fitted template, row by row, and its amplitude in each column block
         t_bins = np.fft.irfft(t.prep[0][ci, ei].astype(np.complex128), n=N_PHASE_BINS)
-        _, _, b = _phase_sums(x, period, N_PHASE_BINS)
-        tr = t_bins[(b + shift) % N_PHASE_BINS]
+        tr = t_bins[(ph.bins + shift) % N_PHASE_BINS]
         tr = tr - tr.mean()
         if block_hp is None:
             block_hp = _highpass_fn(blocks)
