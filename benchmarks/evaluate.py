@@ -37,8 +37,11 @@ def kinds(item: dict) -> list[str]:
 
 
 def decided_by(verdict) -> str:
-    """Which default-profile stage flagged an image: tone tracks, folding or the period sweep."""
+    """Which default-profile stage flagged an image: tone tracks, folding, the period sweep's
+    grid fit or its exact-model refinement."""
     best = verdict.evidence.get("best") or {}
+    if best.get("sweep") and "exact capture model" in str(verdict.evidence.get("reason")):
+        return "exact-fit"
     if best.get("sweep") and "tiled every" in str(verdict.evidence.get("reason")):
         return "sweep"
     if best.get("fold") and "repeat every" in str(verdict.evidence.get("reason")):

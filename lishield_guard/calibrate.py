@@ -155,21 +155,25 @@ def images_needed(target_far: float, confidence: float = CONFIDENCE) -> int:
 class DefaultGrid:
     """Values swept for the default profile (all unitless)."""
 
-    peak_false_prob: tuple[float, ...] = (1e-2, 1e-3, 1e-4, 1e-5)
-    tone_rel_tol: tuple[float, ...] = (0.03, 0.04, 0.05)
+    peak_false_prob: tuple[float, ...] = (1e-3, 1e-4, 1e-5)
+    tone_rel_tol: tuple[float, ...] = (0.04, 0.05)
     min_occupancy: tuple[float, ...] = (0.04, 0.08)
     max_occupancy: tuple[float, ...] = (0.6, 0.8)
-    min_purity: tuple[float, ...] = (0.3, 0.5, 0.7)
+    min_purity: tuple[float, ...] = (0.3, 0.5)
     min_tones: tuple[int, ...] = (2, 3)
     min_tones_rgb: tuple[int, ...] = (3,)
-    sweep_min_rho: tuple[float, ...] = (0.7, 0.8, 0.9)
-    sweep_min_margin: tuple[float, ...] = (0.2, 0.25, 0.3)
-    sweep_min_coherence: tuple[float, ...] = (3.0, 10.0)
+    sweep_min_rho: tuple[float, ...] = (0.7, 0.8)
+    sweep_min_margin: tuple[float, ...] = (0.25, 0.3)
+    sweep_min_coherence: tuple[float, ...] = (3.0,)
+    fit_min_rho: tuple[float, ...] = (0.9, 0.95)
+    fit_min_gain: tuple[float, ...] = (2.0, 3.0, 5.0, 8.0, math.inf)
 
-    def sweep_combos(self) -> list[tuple[float, float, float]]:
-        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence) of the period sweep stage."""
+    def sweep_combos(self) -> list[tuple[float, float, float, float, float]]:
+        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence, fit_min_rho, fit_min_gain)
+        of the period sweep and its exact-model refinement (gain inf: no refinement)."""
         return list(itertools.product(self.sweep_min_rho, self.sweep_min_margin,
-                                      self.sweep_min_coherence))
+                                      self.sweep_min_coherence, self.fit_min_rho,
+                                      self.fit_min_gain))
 
     def match_combos(self) -> list[tuple[float, float, float, float]]:
         """(peak_false_prob, tone_rel_tol, min_occupancy, max_occupancy): each needs matching."""
@@ -337,8 +341,8 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
            "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
                              dtype=float).reshape(-1, 3),
-           "sweeps": np.array([[f["rho"], f["rho_lookalike"], f["coherence_t"]]
-                               for f in sweeps], dtype=float).reshape(-1, 3)}
+           "sweeps": np.array([sweep_row(f) for f in sweeps],
+                              dtype=float).reshape(-1, len(SWEEP_COLUMNS))}
     if paper_grid is not None:
         t0 = time.perf_counter()
         full = decode(source, limits=config.limits, fast=det.fast_decode, max_rows=0)
@@ -351,9 +355,18 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
 
 
 def _any_fit_passes(fits: list[np.ndarray], passes) -> np.ndarray:
-    """Per image: does any row of its fit table (k, 3) satisfy ``passes(col0, col1, col2)``?"""
-    return np.array([bool(passes(f[:, 0], f[:, 1], f[:, 2]).any()) if len(f) else False
-                     for f in fits], dtype=bool)
+    """Per image: does any row of its fit table (k, c) satisfy ``passes(*columns)``?"""
+    return np.array([bool(passes(*f.T).any()) if len(f) else False for f in fits], dtype=bool)
+
+
+SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "fit_t")
+
+
+def sweep_row(info: dict) -> list[float]:
+    """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made)."""
+    fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0}
+    return [info["rho"], info["rho_lookalike"], info["coherence_t"], fit["rho"], fit["gain"],
+            fit["coherence_t"]]
 
 
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
@@ -365,11 +378,14 @@ def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
 
 
 def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
-    """Per image: does any period-sweep fit (rows of rho, rho_lookalike, coherence_t) pass
-    ``det``'s sweep thresholds?"""
-    return _any_fit_passes(sweeps, lambda rho, alt, t: (
-        (rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
-        & (t >= det.sweep_min_coherence)))
+    """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass ``det``'s sweep
+    thresholds, or its exact-model fit the fit thresholds (the array form of
+    `detect.sweep_passes`)?"""
+    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t: (
+        ((rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
+         & (t >= det.sweep_min_coherence))
+        | (det.model_fit & (f_rho >= det.fit_min_rho) & (f_gain >= det.fit_min_gain)
+           & (f_t >= det.sweep_min_coherence))))
 
 
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting
@@ -393,8 +409,8 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         the pattern-folding stage is OR-ed into every setting, for each ``fold_min_rho``.
     det : DetectorConfig, optional
         Supplies the other fold thresholds (fold_min_snr, fold_min_margin).
-    sweeps : list of ndarray (k, 3), optional
-        Per image, the unthresholded period-sweep fits (rho, rho_lookalike, coherence_t); with
+    sweeps : list of ndarray (k, 6), optional
+        Per image, the unthresholded period-sweep fits (`SWEEP_COLUMNS`); with
         ``det`` (and ``det.period_sweep``) that stage is OR-ed in for every
         ``grid.sweep_combos()``.
 
@@ -418,11 +434,12 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
                          for r in fold_min_rho]
     if sweeps is not None and det is not None and det.period_sweep:
         sweep_variants = [((("sweep_min_rho", r), ("sweep_min_margin", mg),
-                            ("sweep_min_coherence", t)),
-                           sweep_protected(sweeps, det.replace(sweep_min_rho=r,
-                                                               sweep_min_margin=mg,
-                                                               sweep_min_coherence=t)))
-                          for r, mg, t in grid.sweep_combos()]
+                            ("sweep_min_coherence", t), ("fit_min_rho", fr),
+                            ("fit_min_gain", fg)),
+                           sweep_protected(sweeps, det.replace(
+                               sweep_min_rho=r, sweep_min_margin=mg, sweep_min_coherence=t,
+                               fit_min_rho=fr, fit_min_gain=fg)))
+                          for r, mg, t, fr, fg in grid.sweep_combos()]
         fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants
                          for sp, so in sweep_variants]
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):

@@ -30,6 +30,7 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_RESOURCE = "default.toml"
+FIT_RHO_FLOOR = 0.8  # modelfit: below this fit rho the look-alike is not fitted (gain 0)
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,16 @@ class DetectorConfig:
         Period sweep: smallest normalised correlation of the tiled template with the rows.
     sweep_min_margin : float
         Period sweep: the template must beat the best stationary look-alike by this much rho.
+    model_fit : bool
+        Refine the sweep's best grid fits with the exact capture model (`modelfit.refine`):
+        linear light, the pattern integrated over each row's exposure, continuous period,
+        c_1, phase and exposure; the stationary look-alike is refined the same way.
+    fit_min_rho : float
+        Exact-model fit: smallest correlation of the template with the linear rows.
+    fit_min_gain : float
+        Exact-model fit: energy explained beyond the refined look-alike over the energy left
+        unexplained, (rho^2 - rho_lookalike^2) / (1 - rho^2). The fit's coherence t must also
+        reach ``sweep_min_coherence``.
     sweep_min_coherence : float
         Period sweep: t statistic of the template's amplitude across column blocks (the LED
         adds the same log contrast to every block; scene structure does not).
@@ -137,6 +148,9 @@ class DetectorConfig:
     sweep_min_rho: float = 0.9
     sweep_min_margin: float = 0.1
     sweep_min_coherence: float = 10.0
+    model_fit: bool = True
+    fit_min_rho: float = 0.95
+    fit_min_gain: float = 4.0
     fast_decode: bool = True
     max_decode_rows: int = 1536
 
@@ -168,6 +182,12 @@ class DetectorConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and -1 <= v <= 2):
                 raise ConfigError(f"need {name} in [-1, 2], got {name}={v!r}")
+        if not (math.isfinite(self.fit_min_rho) and FIT_RHO_FLOOR <= self.fit_min_rho <= 1):
+            raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho <= 1 (look-alikes are only "
+                              f"fitted above {FIT_RHO_FLOOR}), got {self.fit_min_rho!r}")
+        if math.isnan(self.fit_min_gain):
+            raise ConfigError("need a number (or inf: no exact-model verdicts) for fit_min_gain, "
+                              "got nan")
         for name in ("fold_min_snr", "sweep_min_coherence"):
             v = getattr(self, name)
             if not math.isfinite(v):

@@ -12,6 +12,7 @@ from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig, default_config
 from lishield_guard.decode import Decoded, decode
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
+from lishield_guard.modelfit import refine
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles
 from lishield_guard.spec import BarcodeSpec
@@ -19,9 +20,12 @@ from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
 __all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fold_fits",
-           "fold_passes", "spec_planes", "sweep_fits", "sweep_passes"]
+           "fit_passes", "fold_passes", "spec_planes", "sweep_fits", "sweep_passes"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
+FIT_STARTS = 2  # best grid periods per spec channel refined with the exact capture model
+FIT_MIN_GRID_RHO = 0.7  # grid fits below this are not refined (dev set: every exact fit of
+#                         rho >= 0.95 started from a grid fit of rho >= 0.8)
 
 
 class _Timer:
@@ -217,11 +221,26 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 m = replace(m, fold=info)
         if not m.protected and det.period_sweep:
             if sweeps is None:
-                sweeps = _axis_sweeps(planes, specs, det)
+                if periods is None:
+                    periods = _periods(planes["L"], specs, det)
+                sweeps = _axis_sweeps(planes, specs, det, periods)
             fits = sweeps[spec.name]
             passing = [f for f in fits if sweep_passes(f, det)]
-            sw = max(passing or fits, key=lambda f: f["rho"] - f["rho_lookalike"], default=None)
-            if passing:
+            sw = max(passing or fits, key=lambda f: (_grid_passes(f, det),
+                                                     f["rho"] - f["rho_lookalike"]),
+                     default=None)
+            if passing and not _grid_passes(sw, det):
+                fit = sw["fit"]
+                reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
+                          f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
+                          f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot) "
+                          f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
+                          f"{fit['gain']:.1f}x "
+                          f"better than any steady square wave (look-alike rho="
+                          f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
+                          f"column block (t={fit['coherence_t']:.1f})")
+                m = replace(m, protected=True, reason=reason, sweep=sw)
+            elif passing:
                 reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
                           f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
                           f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
@@ -235,14 +254,40 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
 
 
 def sweep_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected."""
-    return (info["rho"] >= det.sweep_min_rho
+    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
+    the grid fit passes the sweep thresholds, or its exact-model refinement passes the fit
+    thresholds."""
+    grid = (info["rho"] >= det.sweep_min_rho
             and info["rho"] - info["rho_lookalike"] >= det.sweep_min_margin
             and info["coherence_t"] >= det.sweep_min_coherence)
+    return grid or fit_passes(info.get("fit"), det)
 
 
-def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
-                 ) -> dict[str, list[dict]]:
+def _grid_passes(info: dict, det: DetectorConfig) -> bool:
+    return sweep_passes({k: v for k, v in info.items() if k != "fit"}, det)
+
+
+def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
+    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`) is evidence enough."""
+    return (det.model_fit and fit is not None and fit["rho"] >= det.fit_min_rho
+            and fit["gain"] >= det.fit_min_gain
+            and fit["coherence_t"] >= det.sweep_min_coherence)
+
+
+def _related_periods(periods) -> tuple[float, ...]:
+    """Repetition periods and their simple multiples and fractions (k/j, k, j <= 3): the
+    autocorrelation often peaks at a slot (period / M) or at two or three periods."""
+    out: list[float] = []
+    for p in periods:
+        for q in sorted({k / j for k in (1, 2, 3) for j in (1, 2, 3)}):
+            v = p * q
+            if all(abs(v / w - 1.0) > 0.01 for w in out):
+                out.append(v)
+    return tuple(out)
+
+
+def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
+                 periods: list[float] | None = None) -> dict[str, list[dict]]:
     """Period-sweep fits of every spec on one axis, one per channel plane (spec name -> fits).
 
     Specs fitted on the same plane share one period grid. Each channel is judged on its own:
@@ -258,11 +303,22 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     scale = scale_range_cpr_per_hz(det)
     out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
     for pa, targets in by_plane.values():
+        ranges = [_period_range_rows(s, det) for s, _ in targets]
         fits = sweep_match(pa.blocks, targets, scale_range_cpr_per_hz=scale,
-                           period_range_rows=[_period_range_rows(s, det) for s, _ in targets])
-        for (spec, c), sm in zip(targets, fits, strict=True):
-            if sm is not None:
-                out[spec.name].append({**sm.to_dict(), "channel": c})
+                           period_range_rows=ranges,
+                           n_starts=FIT_STARTS if det.model_fit else 0,
+                           start_periods=_related_periods(periods or ()))
+        for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
+            if sm is None:
+                continue
+            info = {**sm.to_dict(), "channel": c}
+            if det.model_fit:
+                starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
+                mf = refine(pa.blocks, spec, c, starts, period_range_rows=rng,
+                            scale_range_cpr_per_hz=scale)
+                if mf is not None:
+                    info["fit"] = mf.to_dict()
+            out[spec.name].append(info)
     return out
 
 
@@ -272,7 +328,8 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
     for axis_name, planes in evidence.axes.items():
-        sweeps = _axis_sweeps(planes, specs, det)
+        periods = _periods(planes["L"], specs, det) if "L" in planes else []
+        sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
             for info in sweeps[spec.name]:
                 out.append({"axis": axis_name, "policy": pid, **info})

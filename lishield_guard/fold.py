@@ -294,6 +294,7 @@ SWEEP_MAX_PERIODS = 4.0  # the sweep covers periods >= n_rows / this (folding co
 SWEEP_DRIFT = 1 / 12  # grid step: the last row's phase moves <= this fraction of a period
 SWEEP_REFINE_STEPS = 7  # around each target's best grid period, within +- half a step
 SWEEP_MIN_ROWS = 32  # fewer rows hold no pattern worth tiling
+START_SEPARATION = 0.04  # refinement starts differ in period by more than this (relative)
 VAR_FLOOR = 1e-3  # template variance over rows, relative to its energy, below which rho is 0
 
 
@@ -311,6 +312,8 @@ class SweepMatch:
     n_periods: float
     switching_hz: float = 0.0
     row_rate_hz: float = 0.0
+    phase_slots: float = 0.0  # row 0's position in the pattern, slots
+    starts: tuple = ()  # best grid fits at distinct periods (see _Target.starts)
 
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence (f_B and row rate implied by the fit, the
@@ -397,6 +400,7 @@ class _Target:
     def __init__(self, spec: BarcodeSpec, channel: str, period_range_rows, scale_range,
                  n_rows: int) -> None:
         self.spec, self.channel = spec, channel
+        self.range_lo = period_range_rows[0]
         self.lo = max(period_range_rows[0], n_rows / SWEEP_MAX_PERIODS)
         self.hi = period_range_rows[1]
         self.cycles = np.array(_sweep_cycles(spec.f1_hz, spec.n_tones))
@@ -405,11 +409,17 @@ class _Target:
                           SWEEP_EXPOSURES)
         self.prep = _prepared(bank, N_PHASE_BINS)
         self.best: tuple | None = None  # (rho, _Phased, (c index, exposure index, shift))
+        self.per_period: list[tuple] = []  # (rho, period, c index, exposure index, shift)
 
-    def fit(self, ph: _Phased) -> None:
-        """Fit every template at one period (if possible there); keep the best so far."""
+    def fit(self, ph: _Phased, *, start_only: bool = False) -> None:
+        """Fit every template at one period (if possible there); keep the best so far.
+
+        ``start_only`` periods (repetition periods found by autocorrelation, which may lie
+        below n_rows / SWEEP_MAX_PERIODS) only offer refinement starts: they never become
+        the sweep's own best fit."""
         p = ph.period_rows
-        if not self.lo <= p <= self.hi or not ph.energy > 0:
+        lo = self.range_lo if start_only else self.lo
+        if not lo <= p <= self.hi or not ph.energy > 0:
             return
         m, f1 = self.spec.n_tones, self.spec.f1_hz
         i0 = int(np.searchsorted(self.cycles, f1 * self.scale[0] * p / m))
@@ -418,12 +428,41 @@ class _Target:
             return
         rho = ph.rho(tuple(a[i0:i1] for a in self.prep))
         k = np.unravel_index(int(np.argmax(rho)), rho.shape)
+        self.per_period.append((float(rho[k]), p, i0 + int(k[0]), int(k[1]), int(k[2]),
+                                start_only))
+        if start_only:
+            return
         if self.best is None or float(rho[k]) > self.best[0]:
             self.best = (float(rho[k]), ph, (i0 + int(k[0]), int(k[1]), int(k[2])))
 
+    def starts(self, k: int) -> tuple[tuple[float, float, float, float, float], ...]:
+        """The ``k`` best grid fits at periods >= START_SEPARATION apart (relative), as
+        (rho, period_rows, c_1, phase_slots, exposure_slots): starting points for
+        `modelfit.refine`."""
+        out: list[tuple] = []
+        ranked = sorted(self.per_period, key=lambda r: -r[0])
+        # the k best grid periods, then the best repetition period (if distinct)
+        for pool, quota in (([r for r in ranked if not r[5]], k), ([r for r in ranked if r[5]],
+                                                                     k + 1)):
+            for rho, p, ci, ei, shift, _ in pool:
+                if len(out) >= quota:
+                    break
+                if all(abs(p / q[1] - 1.0) > START_SEPARATION for q in out):
+                    out.append((rho, p, float(self.cycles[ci]),
+                                _phase_slots(self.spec, shift, ei), float(SWEEP_EXPOSURES[ei])))
+        return tuple(out)
+
+
+def _phase_slots(spec: BarcodeSpec, shift: int, exposure_index: int) -> float:
+    """Row 0's position in the pattern (slots) of a grid fit, for a forward box of the
+    exposure's width starting at each row (the bank's box is centred on the bin)."""
+    m = spec.n_tones
+    return (m * shift / N_PHASE_BINS - 0.5 * SWEEP_EXPOSURES[exposure_index]) % m
+
 
 def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
-                scale_range_cpr_per_hz: tuple[float, float]) -> list[SweepMatch | None]:
+                scale_range_cpr_per_hz: tuple[float, float], n_starts: int = 0,
+                start_periods: tuple[float, ...] = ()) -> list[SweepMatch | None]:
     """Best fit of each target's template tiled over the frame, at any period.
 
     Parameters
@@ -438,6 +477,14 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
     scale_range_cpr_per_hz : (float, float)
         Row time x downscale range; bounds c_1 for each period (f_1 appears at c_1 M / period
         cycles per row).
+    n_starts : int
+        How many of the best grid fits at distinct periods to return in ``starts`` (for the
+        exact-model refinement, `modelfit.refine`); 0 returns none.
+    start_periods : tuple of float
+        Extra periods (rows; e.g. the repetition periods `candidate_periods` found) whose grid
+        fits are offered as starts, at any number of periods in the frame. The grid's step
+        drifts 1/12 of a period over the frame, a whole tone cycle for templates of many
+        cycles, so a measured repetition period is a far better start there.
 
     Returns
     -------
@@ -463,11 +510,18 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
             ph = _Phased(highpassed, float(p), n)
             for t in live:
                 t.fit(ph)
+    for p in start_periods if n_starts else ():
+        ph = _Phased(highpassed, float(p), n)
+        for t in tg:
+            t.fit(ph, start_only=True)
     block_hp = None
     out: list[SweepMatch | None] = []
     for t in tg:
         if t.best is None:
-            out.append(None)
+            # no period of the grid's range: only repetition periods offer (refinement) starts
+            starts = t.starts(n_starts) if t.per_period else ()
+            out.append(SweepMatch(t.spec.name, 0.0, 0.0, starts[0][1], starts[0][2], 0.0, 0.0,
+                                  n / starts[0][1], starts=starts) if starts else None)
             continue
         p0 = t.best[1].period_rows
         half = 0.5 * p0 * max(SWEEP_DRIFT * p0 / n, 0.002)
@@ -494,5 +548,6 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         out.append(SweepMatch(t.spec.name, float(rho), rho_alt, float(period),
                               float(t.cycles[ci]), float(SWEEP_EXPOSURES[ei]),
                               float(min(coherence, 1e6)), n / period, f_b,
-                              period * f_b / t.spec.n_tones))
+                              period * f_b / t.spec.n_tones,
+                              _phase_slots(t.spec, shift, ei), t.starts(n_starts)))
     return out

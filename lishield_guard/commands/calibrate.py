@@ -47,12 +47,25 @@ def _hash(*parts) -> str:
 
 # --- worker side (module-level for pickling)
 _W: dict = {}
-EVIDENCE_PREFIX = "ev3-"  # bump when image_record's contents change
+EVIDENCE_PREFIX = "ev5-"  # bump when image_record's layout changes (code edits key the cache)
+
+
+def _code_key() -> str:
+    """Hash of the core's source: cached evidence is only reused by the code that made it."""
+    import lishield_guard
+
+    root = Path(lishield_guard.__file__).parent
+    h = hashlib.sha1()
+    for f in sorted(root.glob("*.py")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
 
 
 def _init_worker(cfg, grid, paper_grid, cache_dir: str | None) -> None:
     _W.update(cfg=cfg, grid=grid, paper_grid=paper_grid, cache=cache_dir,
-              cfg_key=_hash(repr(cfg.detector), repr(cfg.policies), repr(cfg.limits)))
+              cfg_key=_hash(repr(cfg.detector), repr(cfg.policies), repr(cfg.limits),
+                            _code_key()))
 
 
 def _cached(key: str, compute):

@@ -81,7 +81,10 @@ def _describe(v, label: str, *, explain: bool) -> str:
                 info = best.get(stage)
                 if info:
                     lines.append(f"    {stage}: " + ", ".join(
-                        f"{k} {v}" for k, v in info.items() if k != "spec"))
+                        f"{k} {v}" for k, v in info.items() if k not in ("spec", "fit")))
+                if info and info.get("fit"):  # the sweep's exact-model refinement
+                    lines.append("    exact fit: " + ", ".join(
+                        f"{k} {v}" for k, v in info["fit"].items() if k != "spec"))
             for c in ev.get("candidates", []):
                 lines.append(f"    candidate {c.get('axis')}/{c.get('spec')}: "
                              f"{c.get('n_matched')}/{c.get('required')} ({c.get('reason')})")

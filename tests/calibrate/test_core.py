@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -25,10 +26,12 @@ def test_candidate_table_agrees_with_decide(records):
     grid = cal.DefaultGrid(peak_false_prob=(1e-2, 1e-4), tone_rel_tol=(0.05,),
                            min_occupancy=(0.04,), max_occupancy=(0.8,), min_purity=(0.3, 0.6),
                            min_tones=(2,), sweep_min_rho=(0.6, 0.9), sweep_min_margin=(0.0,),
-                           sweep_min_coherence=(3.0,))
+                           sweep_min_coherence=(3.0,), fit_min_rho=(0.9,),
+                           fit_min_gain=(1.0, math.inf))
     tables = np.stack([cal.candidate_table(r["evidence"], cfg, grid)[0] for r in recs])
     settings, prot, _, _ = cal.default_scores(tables, grid, [r["folds"] for r in recs],
-                                              cfg.detector, sweeps=[r["sweeps"] for r in recs])
+                                              cfg.detector, fold_min_rho=(0.9,),
+                                              sweeps=[r["sweeps"] for r in recs])
     n_pos = 0
     for s, p in zip(settings, prot, strict=True):
         det = s.apply(cfg.detector)

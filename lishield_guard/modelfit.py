@@ -1,0 +1,430 @@
+"""Exact-model fit: the barcode's light, integrated over each row's exposure, fitted continuously.
+
+The period sweep (`fold.sweep_match`) correlates the rows with a bank of binned, box-smoothed
+templates on a grid of (period, c_1, exposure, shift). A grid is coarse where it matters: a
+slot holding seven cycles of its tone drifts a whole cycle between neighbouring periods, and a
+log-domain template misfits strong stripes (the log of a box-smoothed square is not a box-smoothed
+square). This module takes the sweep's best grid points as starting points and refines them with
+the exact physics of the capture:
+
+- Linear light. The camera's stored value is about (ambient + LED)^(1/gamma) times the scene, so
+  ``expm1(gamma * log_contrast)`` is, up to gain and offset, the ambient plus the LED's light
+  integrated over each row's exposure (paper Eq. 1): linear in the template for any ambient.
+- Exact template. Row i starts its exposure at u_i = M i / P + phi slots into the pattern and
+  integrates for e slots, so its value is (F(u_i + e) - F(u_i)) / e, with F the cumulative ON
+  time of the spec's pattern (each slot restarts its tone at the start of an ON half-period;
+  `spec.py`). Parameters: period P (rows), c_1 = f_1 / f_B (cycles of f_1 per slot), phase phi
+  and exposure e (slots).
+- Look-alike. The same refinement fits the best stationary square wave (PWM, mains-like,
+  periodic texture: frequency, duty, phase, exposure). The evidence is how much more of the
+  rows' energy the barcode explains than the look-alike, over what the barcode leaves
+  unexplained: ``gain = (rho^2 - rho_lookalike^2) / (1 - rho^2)``.
+- Coherence. The fitted template's amplitude is estimated in every column block; the LED adds
+  the same light to all of them, scene structure does not (a t statistic across blocks).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.optimize import minimize
+
+from lishield_guard.config import FIT_RHO_FLOOR
+from lishield_guard.spec import BarcodeSpec
+
+__all__ = ["ModelFit", "DISPLAY_GAMMA", "linearise", "lookalike_rho", "pattern_knots", "refine",
+           "render_rows", "square_rows"]
+
+DISPLAY_GAMMA = 2.2  # stored value ~ linear light ** (1 / gamma) (sRGB, unitless)
+HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignored (as fold.py)
+MAX_EXPOSURE_SLOTS = 4.0  # t_e x f_B: 1/500 s at f_B = 1600 Hz is 3.2 slots; the attack <= 3
+MIN_BOX = 1e-3  # exposures shorter than this (slots or cycles) are treated as this
+MAX_EVALS = 160  # Nelder-Mead evaluations per start
+SCAN_PHASES = 16  # fewest phases (per pattern period) scanned around each start
+SCAN_MAX_PHASES = 64
+SCAN_CYCLE_RATIOS = (0.86, 0.895, 0.93, 0.965, 1.0, 1.035, 1.07, 1.105, 1.14)  # c_1 scanned
+SCAN_EXPOSURES = (0.0, 0.25, 0.6, 1.0, 1.35, 2.0)  # exposures scanned, slots
+SQUARE_DUTIES = (0.1, 0.3, 0.5, 0.7, 0.9)
+SQUARE_EXPOSURES = (0.0, 0.3, 0.7)  # box widths in cycles of the look-alike
+SQUARE_PHASES = 8
+SQUARE_PEAKS = 3
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """Best exact-model fit of one spec channel to a plane's rows.
+
+    Attributes
+    ----------
+    spec, channel : str
+        Spec name and the channel whose template was fitted.
+    rho : float
+        Normalised correlation of the high-passed template with the high-passed linear rows.
+    rho_lookalike : float or None
+        The same for the best stationary square wave (any frequency, duty, phase, exposure);
+        None when ``rho`` is below `config.FIT_RHO_FLOOR` (not fitted; gain 0).
+    period_rows, cycles_f1, phase_slots, exposure_slots : float
+        Fitted pattern period M / f_B in rows, c_1 = f_1 / f_B, row 0's position in the
+        pattern and the exposure t_e x f_B, both in slots.
+    coherence_t : float
+        t statistic of the template's amplitude across column blocks (unitless).
+    n_periods : float
+        Pattern periods the frame holds.
+    domain : str
+        Where the fit was made (``"linear"``: linear light, see `refine`).
+    """
+
+    spec: str
+    channel: str
+    rho: float
+    rho_lookalike: float | None
+    period_rows: float
+    cycles_f1: float
+    phase_slots: float
+    exposure_slots: float
+    coherence_t: float
+    n_periods: float
+    domain: str = "linear"
+
+    @property
+    def gain(self) -> float:
+        """Energy explained beyond the look-alike over the energy left unexplained (unitless,
+        capped at 1e6): ``(rho^2 - rho_lookalike^2) / (1 - rho^2)``."""
+        if self.rho_lookalike is None:
+            return 0.0
+        return min((self.rho ** 2 - self.rho_lookalike ** 2) / max(1.0 - self.rho ** 2, 1e-6),
+                   1e6)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form for Verdict.evidence."""
+        return {"spec": self.spec, "channel": self.channel, "rho": round(self.rho, 4),
+                "rho_lookalike": (None if self.rho_lookalike is None
+                                  else round(self.rho_lookalike, 4)),
+                "gain": round(self.gain, 3),
+                "period_rows": round(self.period_rows, 3),
+                "cycles_per_slot_f1": round(self.cycles_f1, 3),
+                "phase_slots": round(self.phase_slots, 3),
+                "exposure_slots": round(self.exposure_slots, 3),
+                "coherence_t": round(self.coherence_t, 2), "n_periods": round(self.n_periods, 2),
+                "domain": self.domain}
+
+
+def linearise(log_contrast: np.ndarray, gamma: float = DISPLAY_GAMMA) -> np.ndarray:
+    """Relative linear light ``expm1(gamma * x)`` of log contrast x (unitless, float64).
+
+    Values are clipped to |gamma x| <= 20 so that no overflow can occur.
+    """
+    x = np.asarray(log_contrast, dtype=np.float64)
+    return np.expm1(np.clip(gamma * x, -20.0, 20.0))
+
+
+@lru_cache(maxsize=512)
+def _knots(spec: BarcodeSpec, channel: str, cycles_f1: float) -> tuple[np.ndarray, np.ndarray]:
+    fs = np.asarray(dict(spec.channels)[channel], dtype=np.float64)
+    d = spec.duty
+    us: list[float] = [0.0]
+    on: list[float] = [0.0]
+    acc = 0.0
+    for k, tone in enumerate(spec.slot_order()):
+        c = cycles_f1 * fs[tone] / spec.f1_hz
+        j = 0
+        while j / c < 1.0:
+            a, b = k + j / c, k + min((j + d) / c, 1.0)
+            us += [a, b]
+            on += [acc, acc + (b - a)]
+            acc += b - a
+            j += 1
+    us.append(float(spec.n_tones))
+    on.append(acc)
+    u, f = np.asarray(us), np.asarray(on)
+    u.setflags(write=False)
+    f.setflags(write=False)
+    return u, f
+
+
+class _KnotMaker:
+    """`pattern_knots` of one spec channel as a function of c_1 (no per-call hashing)."""
+
+    def __init__(self, spec: BarcodeSpec, channel: str) -> None:
+        fs = np.asarray(dict(spec.channels)[channel], dtype=np.float64)
+        self.rel = fs[list(spec.slot_order())] / spec.f1_hz
+        self.duty = spec.duty
+        self.m = spec.n_tones
+
+    def __call__(self, cycles_f1: float) -> tuple[np.ndarray, np.ndarray]:
+        starts, ends = [], []
+        for k, r in enumerate(self.rel):
+            c = cycles_f1 * r
+            a = k + np.arange(int(math.ceil(c))) / c
+            starts.append(a)
+            ends.append(np.minimum(a + self.duty / c, k + 1.0))
+        a, b = np.concatenate(starts), np.concatenate(ends)
+        cum = np.concatenate([[0.0], np.cumsum(b - a)])
+        u = np.empty(2 * a.size + 2)
+        on = np.empty_like(u)
+        u[0], on[0] = 0.0, 0.0
+        u[1:-1:2], u[2:-1:2] = a, b
+        on[1:-1:2], on[2:-1:2] = cum[:-1], cum[1:]
+        u[-1], on[-1] = float(self.m), cum[-1]
+        return u, on
+
+
+def pattern_knots(spec: BarcodeSpec, channel: str, cycles_f1: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Cumulative ON time of one pattern period, as knots of a piecewise-linear function.
+
+    Parameters
+    ----------
+    spec : BarcodeSpec
+        The barcode (slot order, tones, duty).
+    channel : str
+        Which channel's tones.
+    cycles_f1 : float
+        c_1 = f_1 / f_B, cycles of the first tone per slot (> 0).
+
+    Returns
+    -------
+    u_slots : ndarray
+        Knot positions in slots, from 0 to M (non-decreasing).
+    on_slots : ndarray
+        ON time accumulated from the period's start to each knot, in slots.
+    """
+    if not cycles_f1 > 0:
+        raise ValueError(f"need cycles_f1 > 0, got {cycles_f1!r}")
+    return _knots(spec, channel, float(cycles_f1))
+
+
+def _cumulative(u_knots: np.ndarray, on_knots: np.ndarray, u: np.ndarray) -> np.ndarray:
+    period = u_knots[-1]
+    q = np.floor(u / period)
+    return q * on_knots[-1] + np.interp(u - q * period, u_knots, on_knots)
+
+
+def render_rows(u_knots: np.ndarray, on_knots: np.ndarray, u_slots: np.ndarray,
+                exposure_slots: float) -> np.ndarray:
+    """Mean ON fraction each row integrates over [u, u + exposure] (slots; exact).
+
+    Parameters
+    ----------
+    u_knots, on_knots : ndarray
+        `pattern_knots` of the spec channel.
+    u_slots : ndarray
+        Exposure start of each row, slots into the pattern (any real value; periodic).
+    exposure_slots : float
+        t_e x f_B; values below 1e-3 are treated as 1e-3 (an instantaneous sample).
+    """
+    e = max(float(exposure_slots), MIN_BOX)
+    return (_cumulative(u_knots, on_knots, u_slots + e)
+            - _cumulative(u_knots, on_knots, u_slots)) / e
+
+
+def square_rows(u_cycles: np.ndarray, duty: float, exposure_cycles: float) -> np.ndarray:
+    """Mean ON fraction of a square wave of the given duty over [u, u + exposure] (cycles)."""
+    e = max(float(exposure_cycles), MIN_BOX)
+
+    def cum(v):
+        fl = np.floor(v)
+        return fl * duty + np.minimum(v - fl, duty)
+
+    return (cum(u_cycles + e) - cum(u_cycles)) / e
+
+
+def _highpass(n_rows: int, sigma_rows: float):
+    """x minus its Gaussian trend (mirror-extended, by FFT) along the last axis."""
+    f2 = np.fft.rfftfreq(2 * n_rows) ** 2
+    gain = 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * f2)
+
+    def apply(x: np.ndarray) -> np.ndarray:
+        spec = np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
+        out = np.fft.irfft(spec * gain, n=2 * n_rows, axis=-1)[..., :n_rows]
+        return out - out.mean(axis=-1, keepdims=True)
+
+    return apply
+
+
+def _corr(t: np.ndarray, y: np.ndarray, yy: float) -> float:
+    tt = float(t @ t)
+    if not (tt > 1e-18 and yy > 0):
+        return 0.0
+    return float(t @ y) / math.sqrt(tt * yy)
+
+
+def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray) -> tuple[float, np.ndarray]:
+    simplex = np.vstack([x0] + [x0 + np.diag(steps)[k] for k in range(x0.size)])
+    res = minimize(fun, x0, method="Nelder-Mead",
+                   options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5,
+                            "maxfev": MAX_EVALS})
+    return float(res.fun), np.asarray(res.x)
+
+
+def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
+           period_range_rows: tuple[float, float], scale_range_cpr_per_hz: tuple[float, float]
+           ) -> ModelFit | None:
+    """Refine grid starts of one spec channel with the exact model; fit the look-alike.
+
+    Parameters
+    ----------
+    blocks_log : ndarray of shape (n_blocks, n_rows)
+        Log contrast per column block (`spectrum.PlaneAnalysis.blocks`).
+    spec, channel : BarcodeSpec, str
+        The template to fit.
+    starts : sequence of (rho, period_rows, cycles_f1, phase_slots, exposure_slots)
+        Grid fits to start from (`fold.SweepMatch.starts`).
+    period_range_rows : (float, float)
+        Physically possible pattern periods M / f_B, rows.
+    scale_range_cpr_per_hz : (float, float)
+        Row time x downscale range: f_1 must appear at c_1 M / period cycles per row within
+        f_1 times this range.
+
+    Returns
+    -------
+    ModelFit or None
+        None without starts or rows.
+
+    Notes
+    -----
+    The fit is made in linear light (`linearise`): there the LED's light is the template
+    itself for any ambient level, while the log of a deep ON/OFF is not. Fitting in the log
+    domain as well, and keeping the better, was tried on development data: +1 detection in
+    143 positives for twice the time, and higher look-alike-free gains on clean images.
+    """
+    blocks_log = np.asarray(blocks_log, dtype=np.float64)
+    if not len(starts) or blocks_log.ndim != 2 or blocks_log.shape[1] < 8:
+        return None
+    domains = {"linear": linearise(blocks_log)}
+    n = blocks_log.shape[1]
+    means = {d: b.mean(axis=0) for d, b in domains.items()}
+    rows = np.arange(n, dtype=np.float64)
+    m = spec.n_tones
+    p_lo, p_hi = period_range_rows
+    s_lo, s_hi = scale_range_cpr_per_hz
+    c_hi = max(1.0, spec.f1_hz / (80.0 * m))
+    best: tuple | None = None
+    knots = _KnotMaker(spec, channel)
+    for _, p0, c0, phi0, e0 in starts:
+        hp = _highpass(n, p0 / (2 * math.pi * HIGHPASS_CYCLES))
+        p0 = min(max(p0, p_lo), p_hi)
+        grid_start = np.array([p0, min(max(c0, 1.0), c_hi), phi0,
+                               min(max(e0, 0.0), MAX_EXPOSURE_SLOTS)])
+        scans = []
+        for dom, x in means.items():
+            y = hp(x)
+            rho_s, c_s, phi_s, e_s = _scan_start(knots, hp, y, rows, m, p0, grid_start[1], c_hi)
+            scans.append((rho_s, dom, y, np.array([p0, c_s, phi_s, e_s])))
+        _, dom, y, scanned = max(scans, key=lambda sc: sc[0])
+        yy = float(y @ y)
+
+        def loss(th, hp=hp, y=y, yy=yy):
+            p, c1, phi, e = th
+            if not (p_lo <= p <= p_hi and 1.0 <= c1 <= c_hi and 0.0 <= e <= MAX_EXPOSURE_SLOTS
+                    and s_lo <= c1 * m / (p * spec.f1_hz) <= s_hi):
+                return 1.0
+            u, f = knots(float(c1))
+            return -_corr(hp(render_rows(u, f, m * rows / p + phi, e)), y, yy)
+
+        x0 = min((grid_start, scanned), key=loss)
+        val, th = _nelder_mead(loss, x0, np.array([0.01 * p0, 0.05, 0.1, 0.05]))
+        if best is None or -val > best[0]:
+            best = (-val, th, hp, y, dom)
+    rho, (p, c1, phi, e), hp, y, dom = best
+    if not rho > 0:
+        return None
+    u, f = knots(float(c1))
+    tr = hp(render_rows(u, f, m * rows / p + phi, e))
+    rho = float(min(rho, 1.0))
+    alt = lookalike_rho(y, hp) if rho >= FIT_RHO_FLOOR else None
+    return ModelFit(spec.name, channel, rho, alt,
+                    float(p), float(c1), float(phi % m), float(e),
+                    _coherence(hp(domains[dom]), tr), n / float(p), dom)
+
+
+def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows: float,
+                cycles_f1: float, c_hi: float) -> tuple[float, float, float, float]:
+    """Best (rho, c_1, phase, exposure) near a grid start, by exhaustive exact-model
+    correlation (of the centred, not high-passed, template: a ranking) at the start's period:
+    the grid's binned templates place the phase only roughly, and the correlation is
+    multimodal in phase (one mode per tone cycle)."""
+    # a third of the fastest tone's cycle per phase step
+    n_phases = int(min(max(math.ceil(3 * m * cycles_f1 * knots.rel.max()), SCAN_PHASES),
+                       SCAN_MAX_PHASES))
+    phases = np.arange(n_phases) * (m / n_phases)
+    best = (-2.0, cycles_f1, 0.0, 0.0)
+    yy = float(y @ y)
+    if not yy > 0:
+        return best
+    for c in sorted({min(max(cycles_f1 * r, 1.0), c_hi) for r in SCAN_CYCLE_RATIOS}):
+        u, f = knots(float(c))
+        base = m * rows / period_rows
+        bank = np.concatenate([render_rows(u, f, base[None, :] + phases[:, None], e)
+                               for e in SCAN_EXPOSURES])
+        # ranking only: the bank is centred, not high-passed (y is), which saves a large
+        # batched FFT per c_1; Nelder-Mead then works with the exact high-passed template
+        bank -= bank.mean(axis=1, keepdims=True)
+        norms = np.sqrt(np.maximum((bank * bank).sum(axis=1), 1e-30))
+        rho = bank @ y / norms / math.sqrt(yy)
+        k = int(np.argmax(rho))
+        if rho[k] > best[0]:
+            best = (float(rho[k]), float(c), float(phases[k % n_phases]),
+                    float(SCAN_EXPOSURES[k // n_phases]))
+    return best
+
+
+def _coherence(blocks_hp: np.ndarray, template_hp: np.ndarray) -> float:
+    """t statistic of the template's least-squares amplitude across blocks."""
+    tt = float(template_hp @ template_hp)
+    if not tt > 0 or blocks_hp.shape[0] < 2:
+        return 0.0
+    amp = blocks_hp @ template_hp / tt
+    mean = float(amp.mean())
+    spread = float(amp.std(ddof=1)) / math.sqrt(amp.size)
+    return float(min(mean / max(spread, 1e-12 * max(abs(mean), 1e-30)), 1e6))
+
+
+def lookalike_rho(y_hp: np.ndarray, hp) -> float:
+    """Best correlation of a stationary square wave (any frequency, duty, phase, exposure)
+    with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
+
+    Starts from the periodogram's strongest peaks (and their half and third: a square wave's
+    fundamental is not always its strongest line after smoothing), a grid of duty, exposure
+    and phase, then refines the best with Nelder-Mead.
+    """
+    y = np.asarray(y_hp, dtype=np.float64)
+    n = y.size
+    yy = float(y @ y)
+    if n < 8 or not yy > 0:
+        return 0.0
+    nfft = 8 * n
+    power = np.abs(np.fft.rfft(y * np.hanning(n), nfft)) ** 2
+    freqs = np.arange(power.size) / nfft
+    power[(freqs < 1.0 / n) | (freqs > 0.45)] = 0.0
+    cands: list[float] = []
+    for _ in range(SQUARE_PEAKS):
+        k = int(np.argmax(power))
+        if not power[k] > 0:
+            break
+        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
+        power[max(0, k - 8): k + 9] = 0.0
+    if not cands:
+        return 0.0
+    rows = np.arange(n, dtype=np.float64)
+    grid = [(f0, d, e, ph) for f0 in cands for d in SQUARE_DUTIES for e in SQUARE_EXPOSURES
+            for ph in np.arange(SQUARE_PHASES) / SQUARE_PHASES]
+    bank = np.stack([square_rows(f0 * rows + ph, d, e) for f0, d, e, ph in grid])
+    bank = hp(bank)
+    norms = np.sqrt(np.maximum((bank * bank).sum(axis=1), 1e-30))
+    rhos = bank @ y / norms / math.sqrt(yy)
+    k = int(np.argmax(rhos))
+    f0, d0, e0, ph0 = grid[k]
+
+    def loss(th):
+        f, d, ph, e = th
+        if not (f > 0 and 0.02 <= d <= 0.98 and 0.0 <= e <= 3.0):
+            return 1.0
+        return -_corr(hp(square_rows(f * rows + ph, d, e)), y, yy)
+
+    val, _ = _nelder_mead(loss, np.array([f0, d0, ph0, e0]),
+                          np.array([0.01 * f0, 0.05, 0.05, 0.05]))
+    return float(min(max(-val, float(rhos[k])), 1.0))

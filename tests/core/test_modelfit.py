@@ -1,0 +1,172 @@
+"""Exact-model fit: the template equals the integrated LED light; refinement recovers the
+capture's parameters; stationary look-alikes and noise give no gain."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+from core_led_model import row_waveform
+
+from lishield_guard import PRESETS
+from lishield_guard.fold import sweep_match
+from lishield_guard.modelfit import (
+    linearise,
+    lookalike_rho,
+    pattern_knots,
+    refine,
+    render_rows,
+    square_rows,
+)
+
+SCALE = (1 / 120_000, 4 / 30_000)  # cycles per row per Hz: the shipped row-rate range
+N_ROWS = 1080
+N_BLOCKS = 8
+
+
+@pytest.mark.parametrize("name, f_b, rate, exposure_s, t0", [
+    ("table1-seq1", 300.0, 60_000, 1 / 4000, 1.3e-3),
+    ("table1-seq3", 900.0, 100_000, 1 / 8000, 0.0),
+    ("table2-rgb", 350.0, 45_000, 1 / 1000, 7e-3),
+])
+def test_template_equals_integrated_light(name, f_b, rate, exposure_s, t0):
+    """render_rows is paper Eq. 1 for the spec's light: it matches a brute-force integral of
+    the ON/OFF waveform (1 us steps) row by row, for every channel."""
+    spec = PRESETS[name]
+    n = 400
+    brute = row_waveform(spec, row_time_s=1 / rate, n_rows=n, exposure_s=exposure_s,
+                         switching_hz=f_b, t0_s=t0)
+    u = (t0 + np.arange(n) / rate) * f_b
+    for ch, ref in brute.items():
+        knots = pattern_knots(spec, ch, spec.f1_hz / f_b)
+        mine = render_rows(*knots, u, exposure_s * f_b)
+        # the brute-force integral rounds each row's window to 1 us
+        assert np.max(np.abs(mine - ref)) < 2e-6 / exposure_s + 1e-9, ch
+
+
+def test_knots_accumulate_duty():
+    spec = PRESETS["table1-seq1"]
+    u, on = pattern_knots(spec, "W", 1.0)
+    assert u[0] == 0 and u[-1] == spec.n_tones
+    assert np.all(np.diff(u) >= 0) and np.all(np.diff(on) >= -1e-12)
+    assert on[-1] == pytest.approx(spec.duty * spec.n_tones, rel=0.2)
+    with pytest.raises(ValueError, match="cycles_f1"):
+        pattern_knots(spec, "W", 0.0)
+
+
+def test_square_rows_is_box_average():
+    u = np.linspace(0, 5, 2001)
+    assert np.allclose(square_rows(u, 0.5, 1.0), 0.5)  # a whole cycle averages to the duty
+    inst = square_rows(u, 0.3, 0.0)
+    assert set(np.unique(np.round(inst, 6))) <= {0.0, 1.0}
+
+
+def _blocks(signal: np.ndarray, rng, noise: float) -> np.ndarray:
+    return np.stack([signal + rng.normal(0, noise, signal.size) for _ in range(N_BLOCKS)])
+
+
+def _capture(spec, *, f_b, rate, exposure_s, t0, depth=0.2, ambient=0.5):
+    w = row_waveform(spec, row_time_s=1 / rate, n_rows=N_ROWS, exposure_s=exposure_s,
+                     switching_hz=f_b, t0_s=t0)["W"]
+    light = ambient + depth * w
+    return np.log(light / light.mean()) / 2.2  # stored log contrast after display gamma
+
+
+def _fit(blocks_log, spec, period_range=(8.0, 4000.0)):
+    sm = sweep_match(blocks_log, [(spec, "W")], period_range_rows=[period_range],
+                     scale_range_cpr_per_hz=SCALE, n_starts=3)[0]
+    assert sm is not None and len(sm.starts) >= 1
+    return refine(blocks_log, spec, "W", sm.starts, period_range_rows=period_range,
+                  scale_range_cpr_per_hz=SCALE)
+
+
+@pytest.mark.parametrize("name, f_b, rate, exposure_s, t0", [
+    ("table1-seq1", 320.0, 90_000, 1 / 3000, 2e-3),
+    ("table1-seq2", 400.0, 110_000, 1 / 1500, 0.0),
+    ("table1-seq3", 700.0, 80_000, 1 / 6000, 4e-3),
+])
+def test_refinement_recovers_capture(rng, name, f_b, rate, exposure_s, t0):
+    spec = PRESETS[name]
+    x = _capture(spec, f_b=f_b, rate=rate, exposure_s=exposure_s, t0=t0)
+    fit = _fit(_blocks(x, rng, 0.002), spec)
+    period = spec.n_tones / f_b * rate
+    assert fit.rho > 0.97
+    assert fit.gain > 5.0
+    assert fit.coherence_t > 20
+    assert fit.period_rows == pytest.approx(period, rel=0.01)
+    assert fit.cycles_f1 == pytest.approx(spec.f1_hz / f_b, rel=0.02)
+    assert fit.exposure_slots == pytest.approx(exposure_s * f_b, abs=0.06)
+
+
+@pytest.mark.parametrize("freq_hz, duty, exposure_s", [(500.0, 0.5, 1 / 8000),
+                                                       (1300.0, 0.3, 1 / 4000),
+                                                       (120.0, 0.5, 1 / 2000)])
+def test_stationary_square_wave_gains_nothing(rng, freq_hz, duty, exposure_s):
+    """PWM dimming (and mains-like flicker) is fitted at least as well by the look-alike."""
+    rate = 70_000
+    u = np.arange(N_ROWS) / rate * freq_hz
+    light = 0.4 + square_rows(u, duty, exposure_s * freq_hz)
+    x = np.log(light / light.mean()) / 2.2
+    blocks = _blocks(x, rng, 0.002)
+    for spec in (PRESETS["table1-seq1"], PRESETS["table1-seq2"], PRESETS["table1-seq3"]):
+        fit = _fit(blocks, spec)
+        assert fit is None or fit.gain < 1.0, (spec.name, fit)
+
+
+def test_noise_gives_no_fit_worth_a_verdict(rng):
+    blocks = rng.normal(0, 0.01, (N_BLOCKS, N_ROWS))
+    for spec in (PRESETS["table1-seq1"], PRESETS["table1-seq3"]):
+        fit = _fit(blocks, spec)
+        assert fit is None or fit.rho < 0.8 or fit.gain < 1.0
+
+
+def test_lookalike_fits_a_square_wave():
+    rows = np.arange(900, dtype=float)
+    y = square_rows(rows / 37.3 + 0.2, 0.4, 0.1)
+    y = y - y.mean()
+    assert lookalike_rho(y, lambda t: t - np.mean(t, axis=-1, keepdims=True)) > 0.98
+
+
+def test_degenerate_inputs_are_quiet(rng):
+    spec = PRESETS["table1-seq1"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert refine(np.zeros((N_BLOCKS, 4)), spec, "W", [(0.9, 100.0, 1.0, 0.0, 0.0)],
+                      period_range_rows=(8.0, 4000.0), scale_range_cpr_per_hz=SCALE) is None
+        assert refine(np.zeros((N_BLOCKS, N_ROWS)), spec, "W", [],
+                      period_range_rows=(8.0, 4000.0), scale_range_cpr_per_hz=SCALE) is None
+        flat = refine(np.zeros((N_BLOCKS, N_ROWS)), spec, "W", [(0.9, 300.0, 1.2, 0.5, 0.1)],
+                      period_range_rows=(8.0, 4000.0), scale_range_cpr_per_hz=SCALE)
+        assert flat is None
+        assert lookalike_rho(np.zeros(500), lambda t: t) == 0.0
+        big = linearise(np.array([1e6, -1e6, 0.0]))
+        assert np.all(np.isfinite(big)) and big[2] == 0.0
+        assert math.isfinite(lookalike_rho(rng.normal(size=300), lambda t: t - t.mean()))
+
+
+def test_fit_decides_where_the_grid_cannot(rng):
+    """A seq3 capture holding seven periods under a 1.3-slot exposure: the binned grid's
+    best fit does not pass the sweep thresholds, the exact model does (shipped config)."""
+    from lishield_guard import default_config
+    from lishield_guard.barcode import scale_range_cpr_per_hz
+    from lishield_guard.detect import _axis_sweeps, _grid_passes, fit_passes
+    from lishield_guard.spectrum import PlaneAnalysis
+
+    det = default_config().detector
+    spec = PRESETS["table1-seq3"]
+    f_b, rate = 1168.0, 57_000.0
+    x = _capture(spec, f_b=f_b, rate=rate, exposure_s=1.09e-3, t0=1e-3, depth=0.5,
+                 ambient=1.0)
+    blocks = _blocks(x, rng, 0.004)
+    pa = PlaneAnalysis(N_ROWS, N_BLOCKS, (), (), blocks.mean(axis=0).astype(np.float32),
+                       blocks.astype(np.float32))
+    period = spec.n_tones / f_b * rate
+    assert N_ROWS / period > 7
+    fits = _axis_sweeps({"L": pa}, [("p", spec)], det, [2 * period])[spec.name]
+    assert scale_range_cpr_per_hz(det)[0] > 0
+    (info,) = fits
+    assert not _grid_passes(info, det)
+    assert fit_passes(info["fit"], det), info["fit"]
+    assert info["fit"]["period_rows"] == pytest.approx(period, rel=0.01)
