@@ -257,14 +257,14 @@ def sweep_passes(info: dict, det: DetectorConfig) -> bool:
     """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
     the grid fit passes the sweep thresholds, or its exact-model refinement passes the fit
     thresholds."""
-    grid = (info["rho"] >= det.sweep_min_rho
-            and info["rho"] - info["rho_lookalike"] >= det.sweep_min_margin
-            and info["coherence_t"] >= det.sweep_min_coherence)
-    return grid or fit_passes(info.get("fit"), det)
+    return _grid_passes(info, det) or fit_passes(info.get("fit"), det)
 
 
 def _grid_passes(info: dict, det: DetectorConfig) -> bool:
-    return sweep_passes({k: v for k, v in info.items() if k != "fit"}, det)
+    """Whether the sweep's own (binned-grid) fit passes the sweep thresholds."""
+    return (info["rho"] >= det.sweep_min_rho
+            and info["rho"] - info["rho_lookalike"] >= det.sweep_min_margin
+            and info["coherence_t"] >= det.sweep_min_coherence)
 
 
 def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:

@@ -27,7 +27,8 @@ from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
-__all__ = ["FoldMatch", "candidate_periods", "fold", "fold_match", "refine_period"]
+__all__ = ["FoldMatch", "block_coherence_t", "candidate_periods", "fold", "fold_match",
+           "refine_period"]
 
 N_PHASE_BINS = 96
 N_CYCLE_STEPS = 160
@@ -312,7 +313,6 @@ class SweepMatch:
     n_periods: float
     switching_hz: float = 0.0
     row_rate_hz: float = 0.0
-    phase_slots: float = 0.0  # row 0's position in the pattern, slots
     starts: tuple = ()  # best grid fits at distinct periods (see _Target.starts)
 
     def to_dict(self) -> dict:
@@ -453,6 +453,19 @@ class _Target:
         return tuple(out)
 
 
+def block_coherence_t(blocks_hp: np.ndarray, template_hp: np.ndarray) -> float:
+    """t statistic (unitless, capped at 1e6) of a zero-mean template's least-squares amplitude
+    across column blocks (rows of ``blocks_hp``, zero mean): the LED adds the same light to
+    every block, scene structure does not. 0 for a flat template or fewer than 2 blocks."""
+    tt = float(template_hp @ template_hp)
+    if not tt > 0 or blocks_hp.shape[0] < 2:
+        return 0.0
+    amp = blocks_hp @ template_hp / tt
+    mean = float(amp.mean())
+    spread = float(amp.std(ddof=1)) / math.sqrt(amp.size)
+    return float(min(mean / max(spread, 1e-12 * max(abs(mean), 1e-30)), 1e6))
+
+
 def _phase_slots(spec: BarcodeSpec, shift: int, exposure_index: int) -> float:
     """Row 0's position in the pattern (slots) of a grid fit, for a forward box of the
     exposure's width starting at each row (the bank's box is centred on the bin)."""
@@ -540,14 +553,9 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
             block_hp = _highpass_fn(blocks)
         xb = block_hp(period)
         xb = xb - xb.mean(axis=1, keepdims=True)
-        amp = xb @ tr / max(float(tr @ tr), 1e-30)
-        mean = float(amp.mean())
-        spread = float(amp.std(ddof=1)) / math.sqrt(amp.size)
-        coherence = mean / max(spread, 1e-12 * max(abs(mean), 1e-30))
         f_b = t.spec.f1_hz / float(t.cycles[ci])
         out.append(SweepMatch(t.spec.name, float(rho), rho_alt, float(period),
                               float(t.cycles[ci]), float(SWEEP_EXPOSURES[ei]),
-                              float(min(coherence, 1e6)), n / period, f_b,
-                              period * f_b / t.spec.n_tones,
-                              _phase_slots(t.spec, shift, ei), t.starts(n_starts)))
+                              block_coherence_t(xb, tr), n / period, f_b,
+                              period * f_b / t.spec.n_tones, t.starts(n_starts)))
     return out

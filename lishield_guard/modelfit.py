@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
+from lishield_guard.fold import block_coherence_t
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["ModelFit", "DISPLAY_GAMMA", "linearise", "lookalike_rho", "pattern_knots", "refine",
@@ -121,32 +121,9 @@ def linearise(log_contrast: np.ndarray, gamma: float = DISPLAY_GAMMA) -> np.ndar
     return np.expm1(np.clip(gamma * x, -20.0, 20.0))
 
 
-@lru_cache(maxsize=512)
-def _knots(spec: BarcodeSpec, channel: str, cycles_f1: float) -> tuple[np.ndarray, np.ndarray]:
-    fs = np.asarray(dict(spec.channels)[channel], dtype=np.float64)
-    d = spec.duty
-    us: list[float] = [0.0]
-    on: list[float] = [0.0]
-    acc = 0.0
-    for k, tone in enumerate(spec.slot_order()):
-        c = cycles_f1 * fs[tone] / spec.f1_hz
-        j = 0
-        while j / c < 1.0:
-            a, b = k + j / c, k + min((j + d) / c, 1.0)
-            us += [a, b]
-            on += [acc, acc + (b - a)]
-            acc += b - a
-            j += 1
-    us.append(float(spec.n_tones))
-    on.append(acc)
-    u, f = np.asarray(us), np.asarray(on)
-    u.setflags(write=False)
-    f.setflags(write=False)
-    return u, f
-
-
 class _KnotMaker:
-    """`pattern_knots` of one spec channel as a function of c_1 (no per-call hashing)."""
+    """`pattern_knots` of one spec channel as a function of c_1 (the tone ratios and slot
+    order are looked up once, not at each of the fit's evaluations)."""
 
     def __init__(self, spec: BarcodeSpec, channel: str) -> None:
         fs = np.asarray(dict(spec.channels)[channel], dtype=np.float64)
@@ -194,7 +171,7 @@ def pattern_knots(spec: BarcodeSpec, channel: str, cycles_f1: float
     """
     if not cycles_f1 > 0:
         raise ValueError(f"need cycles_f1 > 0, got {cycles_f1!r}")
-    return _knots(spec, channel, float(cycles_f1))
+    return _KnotMaker(spec, channel)(float(cycles_f1))
 
 
 def _cumulative(u_knots: np.ndarray, on_knots: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -294,9 +271,9 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     blocks_log = np.asarray(blocks_log, dtype=np.float64)
     if not len(starts) or blocks_log.ndim != 2 or blocks_log.shape[1] < 8:
         return None
-    domains = {"linear": linearise(blocks_log)}
+    blocks_lin = linearise(blocks_log)
+    x = blocks_lin.mean(axis=0)
     n = blocks_log.shape[1]
-    means = {d: b.mean(axis=0) for d, b in domains.items()}
     rows = np.arange(n, dtype=np.float64)
     m = spec.n_tones
     p_lo, p_hi = period_range_rows
@@ -309,13 +286,9 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
         p0 = min(max(p0, p_lo), p_hi)
         grid_start = np.array([p0, min(max(c0, 1.0), c_hi), phi0,
                                min(max(e0, 0.0), MAX_EXPOSURE_SLOTS)])
-        scans = []
-        for dom, x in means.items():
-            y = hp(x)
-            rho_s, c_s, phi_s, e_s = _scan_start(knots, hp, y, rows, m, p0, grid_start[1], c_hi)
-            scans.append((rho_s, dom, y, np.array([p0, c_s, phi_s, e_s])))
-        _, dom, y, scanned = max(scans, key=lambda sc: sc[0])
+        y = hp(x)
         yy = float(y @ y)
+        scanned = np.array([p0, *_scan_start(knots, hp, y, rows, m, p0, grid_start[1], c_hi)])
 
         def loss(th, hp=hp, y=y, yy=yy):
             p, c1, phi, e = th
@@ -328,8 +301,8 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
         x0 = min((grid_start, scanned), key=loss)
         val, th = _nelder_mead(loss, x0, np.array([0.01 * p0, 0.05, 0.1, 0.05]))
         if best is None or -val > best[0]:
-            best = (-val, th, hp, y, dom)
-    rho, (p, c1, phi, e), hp, y, dom = best
+            best = (-val, th, hp, y)
+    rho, (p, c1, phi, e), hp, y = best
     if not rho > 0:
         return None
     u, f = knots(float(c1))
@@ -338,12 +311,12 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     alt = lookalike_rho(y, hp) if rho >= FIT_RHO_FLOOR else None
     return ModelFit(spec.name, channel, rho, alt,
                     float(p), float(c1), float(phi % m), float(e),
-                    _coherence(hp(domains[dom]), tr), n / float(p), dom)
+                    block_coherence_t(hp(blocks_lin), tr), n / float(p))
 
 
 def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows: float,
-                cycles_f1: float, c_hi: float) -> tuple[float, float, float, float]:
-    """Best (rho, c_1, phase, exposure) near a grid start, by exhaustive exact-model
+                cycles_f1: float, c_hi: float) -> tuple[float, float, float]:
+    """Best (c_1, phase, exposure) near a grid start, by exhaustive exact-model
     correlation (of the centred, not high-passed, template: a ranking) at the start's period:
     the grid's binned templates place the phase only roughly, and the correlation is
     multimodal in phase (one mode per tone cycle)."""
@@ -354,7 +327,7 @@ def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows:
     best = (-2.0, cycles_f1, 0.0, 0.0)
     yy = float(y @ y)
     if not yy > 0:
-        return best
+        return best[1:]
     for c in sorted({min(max(cycles_f1 * r, 1.0), c_hi) for r in SCAN_CYCLE_RATIOS}):
         u, f = knots(float(c))
         base = m * rows / period_rows
@@ -369,18 +342,7 @@ def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows:
         if rho[k] > best[0]:
             best = (float(rho[k]), float(c), float(phases[k % n_phases]),
                     float(SCAN_EXPOSURES[k // n_phases]))
-    return best
-
-
-def _coherence(blocks_hp: np.ndarray, template_hp: np.ndarray) -> float:
-    """t statistic of the template's least-squares amplitude across blocks."""
-    tt = float(template_hp @ template_hp)
-    if not tt > 0 or blocks_hp.shape[0] < 2:
-        return 0.0
-    amp = blocks_hp @ template_hp / tt
-    mean = float(amp.mean())
-    spread = float(amp.std(ddof=1)) / math.sqrt(amp.size)
-    return float(min(mean / max(spread, 1e-12 * max(abs(mean), 1e-30)), 1e6))
+    return best[1:]
 
 
 def lookalike_rho(y_hp: np.ndarray, hp) -> float:
