@@ -156,24 +156,30 @@ class DefaultGrid:
     """Values swept for the default profile (all unitless)."""
 
     peak_false_prob: tuple[float, ...] = (1e-3, 1e-4, 1e-5)
-    tone_rel_tol: tuple[float, ...] = (0.04, 0.05)
+    tone_rel_tol: tuple[float, ...] = (0.05,)
     min_occupancy: tuple[float, ...] = (0.04, 0.08)
-    max_occupancy: tuple[float, ...] = (0.6, 0.8)
+    max_occupancy: tuple[float, ...] = (0.8,)
     min_purity: tuple[float, ...] = (0.3, 0.5)
     min_tones: tuple[int, ...] = (2, 3)
     min_tones_rgb: tuple[int, ...] = (3,)
     sweep_min_rho: tuple[float, ...] = (0.7, 0.8)
-    sweep_min_margin: tuple[float, ...] = (0.25, 0.3)
+    sweep_min_margin: tuple[float, ...] = (0.3,)
     sweep_min_coherence: tuple[float, ...] = (3.0,)
     fit_min_rho: tuple[float, ...] = (0.9, 0.95)
     fit_min_gain: tuple[float, ...] = (2.0, 3.0, 5.0, 8.0, math.inf)
+    # (fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb); leak 0 turns the path off
+    fit_rgb: tuple[tuple[float, float, float], ...] = (
+        *itertools.product((0.8, 0.85, 0.9), (0.5, 1.0, 2.0, 3.0), (0.15, 0.3)),
+        (0.9, 4.0, 0.0))
 
-    def sweep_combos(self) -> list[tuple[float, float, float, float, float]]:
-        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence, fit_min_rho, fit_min_gain)
-        of the period sweep and its exact-model refinement (gain inf: no refinement)."""
-        return list(itertools.product(self.sweep_min_rho, self.sweep_min_margin,
-                                      self.sweep_min_coherence, self.fit_min_rho,
-                                      self.fit_min_gain))
+    def sweep_combos(self) -> list[tuple[float, ...]]:
+        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence, fit_min_rho, fit_min_gain,
+        fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb) of the period sweep and its
+        exact-model refinement (gain inf: no refinement; leak 0: no colour-verified path)."""
+        return [(*a, *b) for a, b in itertools.product(
+            itertools.product(self.sweep_min_rho, self.sweep_min_margin,
+                              self.sweep_min_coherence, self.fit_min_rho, self.fit_min_gain),
+            self.fit_rgb)]
 
     def match_combos(self) -> list[tuple[float, float, float, float]]:
         """(peak_false_prob, tone_rel_tol, min_occupancy, max_occupancy): each needs matching."""
@@ -359,14 +365,16 @@ def _any_fit_passes(fits: list[np.ndarray], passes) -> np.ndarray:
     return np.array([bool(passes(*f.T).any()) if len(f) else False for f in fits], dtype=bool)
 
 
-SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "fit_t")
+SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "fit_t",
+                 "fit_leak")
 
 
 def sweep_row(info: dict) -> list[float]:
     """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made)."""
     fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0}
+    leak = fit.get("chroma_leak")
     return [info["rho"], info["rho_lookalike"], info["coherence_t"], fit["rho"], fit["gain"],
-            fit["coherence_t"]]
+            fit["coherence_t"], math.inf if leak is None else leak]
 
 
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
@@ -381,11 +389,13 @@ def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray
     """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass ``det``'s sweep
     thresholds, or its exact-model fit the fit thresholds (the array form of
     `detect.sweep_passes`)?"""
-    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t: (
+    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak: (
         ((rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
          & (t >= det.sweep_min_coherence))
-        | (det.model_fit & (f_rho >= det.fit_min_rho) & (f_gain >= det.fit_min_gain)
-           & (f_t >= det.sweep_min_coherence))))
+        | (det.model_fit & (f_t >= det.sweep_min_coherence)
+           & (((f_rho >= det.fit_min_rho) & (f_gain >= det.fit_min_gain))
+              | ((leak <= det.fit_max_leak_rgb) & (f_rho >= det.fit_min_rho_rgb)
+                 & (f_gain >= det.fit_min_gain_rgb))))))
 
 
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting
@@ -433,13 +443,12 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
                           fold_protected(folds, det.replace(fold_min_rho=r)))
                          for r in fold_min_rho]
     if sweeps is not None and det is not None and det.period_sweep:
-        sweep_variants = [((("sweep_min_rho", r), ("sweep_min_margin", mg),
-                            ("sweep_min_coherence", t), ("fit_min_rho", fr),
-                            ("fit_min_gain", fg)),
-                           sweep_protected(sweeps, det.replace(
-                               sweep_min_rho=r, sweep_min_margin=mg, sweep_min_coherence=t,
-                               fit_min_rho=fr, fit_min_gain=fg)))
-                          for r, mg, t, fr, fg in grid.sweep_combos()]
+        names = ("sweep_min_rho", "sweep_min_margin", "sweep_min_coherence", "fit_min_rho",
+                 "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb")
+        sweep_variants = [(tuple(zip(names, combo, strict=True)),
+                           sweep_protected(sweeps, det.replace(**dict(zip(names, combo,
+                                                                          strict=True)))))
+                          for combo in grid.sweep_combos()]
         fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants
                          for sp, so in sweep_variants]
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):

@@ -105,6 +105,12 @@ class DetectorConfig:
         Exact-model fit: energy explained beyond the refined look-alike over the energy left
         unexplained, (rho^2 - rho_lookalike^2) / (1 - rho^2). The fit's coherence t must also
         reach ``sweep_min_coherence``.
+    fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb : float
+        A second, colour-verified way for a channel of an RGB barcode to pass: its fit needs
+        only these rho and gain when the fitted template's amplitudes in the R, G, B planes
+        point at its own channel (`modelfit.chroma_leak` <= ``fit_max_leak_rgb``; a grey
+        scene's structure shows in all three planes alike, leak sqrt 2). 0 leak turns this
+        path off.
     sweep_min_coherence : float
         Period sweep: t statistic of the template's amplitude across column blocks (the LED
         adds the same log contrast to every block; scene structure does not).
@@ -151,6 +157,9 @@ class DetectorConfig:
     model_fit: bool = True
     fit_min_rho: float = 0.95
     fit_min_gain: float = 4.0
+    fit_min_rho_rgb: float = 0.9
+    fit_min_gain_rgb: float = 4.0
+    fit_max_leak_rgb: float = 0.0
     fast_decode: bool = True
     max_decode_rows: int = 1536
 
@@ -185,9 +194,17 @@ class DetectorConfig:
         if not (math.isfinite(self.fit_min_rho) and FIT_RHO_FLOOR <= self.fit_min_rho <= 1):
             raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho <= 1 (look-alikes are only "
                               f"fitted above {FIT_RHO_FLOOR}), got {self.fit_min_rho!r}")
-        if math.isnan(self.fit_min_gain):
-            raise ConfigError("need a number (or inf: no exact-model verdicts) for fit_min_gain, "
-                              "got nan")
+        if not (math.isfinite(self.fit_min_rho_rgb)
+                and FIT_RHO_FLOOR <= self.fit_min_rho_rgb <= 1):
+            raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho_rgb <= 1, got "
+                              f"{self.fit_min_rho_rgb!r}")
+        for name in ("fit_min_gain", "fit_min_gain_rgb"):
+            if math.isnan(getattr(self, name)):
+                raise ConfigError(f"need a number (or inf: no exact-model verdicts) for {name}, "
+                                  f"got nan")
+        if not self.fit_max_leak_rgb >= 0:
+            raise ConfigError(f"need fit_max_leak_rgb >= 0 (0: off), got "
+                              f"{self.fit_max_leak_rgb!r}")
         for name in ("fold_min_snr", "sweep_min_coherence"):
             v = getattr(self, name)
             if not math.isfinite(v):

@@ -14,7 +14,7 @@ from lishield_guard.decode import Decoded, decode
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
 from lishield_guard.modelfit import refine
 from lishield_guard.paper import run_paper
-from lishield_guard.profile import block_row_profiles
+from lishield_guard.profile import block_row_profiles, merge_blocks
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
@@ -23,9 +23,12 @@ __all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded",
            "fit_passes", "fold_passes", "spec_planes", "sweep_fits", "sweep_passes"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
-FIT_STARTS = 2  # best grid periods per spec channel refined with the exact capture model
-FIT_MIN_GRID_RHO = 0.7  # grid fits below this are not refined (dev set: every exact fit of
-#                         rho >= 0.95 started from a grid fit of rho >= 0.8)
+FIT_STARTS = 3  # best grid periods per spec channel refined with the exact capture model
+FIT_SUB_BLOCKS = 4  # sweep and fit weight n_col_blocks x this many column sub-blocks
+MIN_SLOTS_IN_FRAME = 2.0  # sweep/fit periods must leave two slots (two tones) in the frame:
+#                           one tone is what a steady light shows
+FIT_MIN_GRID_RHO = 0.55  # grid fits below this are not refined (dev set: with quiet-weighted
+#                          sub-blocks, true periods started from grid fits of rho 0.6-0.7)
 
 
 class _Timer:
@@ -135,11 +138,14 @@ def _analyse(plane: np.ndarray, axis: int, config: AppConfig,
              row_scale: float = 1.0) -> PlaneAnalysis:
     det = config.detector
     lo, hi = _band_cpr(config, row_scale)
-    profiles = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis)
+    fine = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis,
+                              sub_blocks=FIT_SUB_BLOCKS)
+    profiles = merge_blocks(fine, plane.shape[1 - axis], det.n_col_blocks, FIT_SUB_BLOCKS)
     n_rows = profiles.shape[1]
     sigma = min(0.5 / lo if lo > 0 else n_rows, n_rows / 6.0)
     return analyse_profiles(profiles, full_scale=_full_scale(plane), band_cpr=(lo, hi),
-                            trend_sigma_rows=sigma, false_prob=det.peak_false_prob)
+                            trend_sigma_rows=sigma, false_prob=det.peak_false_prob,
+                            fine_profiles=fine)
 
 
 AXIS_NAMES = {0: "rows", 1: "columns"}
@@ -238,7 +244,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                           f"{fit['gain']:.1f}x "
                           f"better than any steady square wave (look-alike rho="
                           f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
-                          f"column block (t={fit['coherence_t']:.1f})")
+                          f"column block (t={fit['coherence_t']:.1f})"
+                          + ("" if fit.get("chroma_leak") is None else
+                             f" and in its own colour plane only (chroma leak "
+                             f"{fit['chroma_leak']:.2f})"))
                 m = replace(m, protected=True, reason=reason, sweep=sw)
             elif passing:
                 reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
@@ -268,10 +277,18 @@ def _grid_passes(info: dict, det: DetectorConfig) -> bool:
 
 
 def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
-    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`) is evidence enough."""
-    return (det.model_fit and fit is not None and fit["rho"] >= det.fit_min_rho
-            and fit["gain"] >= det.fit_min_gain
-            and fit["coherence_t"] >= det.sweep_min_coherence)
+    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`) is evidence enough: rho and
+    gain reach ``fit_min_rho`` and ``fit_min_gain``, or (an RGB channel whose colour was
+    measured) its chroma leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
+    ``_rgb`` thresholds; the coherence t must reach ``sweep_min_coherence`` either way."""
+    if not (det.model_fit and fit is not None
+            and fit["coherence_t"] >= det.sweep_min_coherence):
+        return False
+    if fit["rho"] >= det.fit_min_rho and fit["gain"] >= det.fit_min_gain:
+        return True
+    leak = fit.get("chroma_leak")
+    return (leak is not None and leak <= det.fit_max_leak_rgb and fit["rho"] >= det.fit_min_rho_rgb
+            and fit["gain"] >= det.fit_min_gain_rgb)
 
 
 def _related_periods(periods) -> tuple[float, ...]:
@@ -284,6 +301,18 @@ def _related_periods(periods) -> tuple[float, ...]:
             if all(abs(v / w - 1.0) > 0.01 for w in out):
                 out.append(v)
     return tuple(out)
+
+
+def _colour_blocks(planes: dict[str, PlaneAnalysis]) -> dict[str, np.ndarray] | None:
+    """Column-block log contrast of the R, G, B planes (sub-blocks where analysed), or None
+    unless all three were analysed."""
+    out = {}
+    for c in "RGB":
+        pa = planes.get(c)
+        if pa is None or pa.blocks is None:
+            return None
+        out[c] = pa.blocks if pa.fine_blocks is None else pa.fine_blocks
+    return out
 
 
 def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
@@ -303,19 +332,21 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
     scale = scale_range_cpr_per_hz(det)
     out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
     for pa, targets in by_plane.values():
-        ranges = [_period_range_rows(s, det) for s, _ in targets]
-        fits = sweep_match(pa.blocks, targets, scale_range_cpr_per_hz=scale,
+        ranges = [_frame_period_range(s, det, pa.n_rows) for s, _ in targets]
+        blocks = pa.blocks if pa.fine_blocks is None else pa.fine_blocks
+        fits = sweep_match(blocks, targets, scale_range_cpr_per_hz=scale,
                            period_range_rows=ranges,
                            n_starts=FIT_STARTS if det.model_fit else 0,
-                           start_periods=_related_periods(periods or ()))
+                           start_periods=_related_periods(periods or ()), weighted=True)
         for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
             if sm is None:
                 continue
             info = {**sm.to_dict(), "channel": c}
             if det.model_fit:
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
-                mf = refine(pa.blocks, spec, c, starts, period_range_rows=rng,
-                            scale_range_cpr_per_hz=scale)
+                mf = refine(blocks, spec, c, starts, period_range_rows=rng,
+                            scale_range_cpr_per_hz=scale,
+                            colour_blocks=_colour_blocks(planes) if spec.is_rgb else None)
                 if mf is not None:
                     info["fit"] = mf.to_dict()
             out[spec.name].append(info)
@@ -364,6 +395,14 @@ def _period_range_rows(spec: BarcodeSpec, det: DetectorConfig) -> tuple[float, f
     s_lo, s_hi = scale_range_cpr_per_hz(det)
     f_b_min = spec.n_tones * 80.0
     return spec.n_tones / (spec.f1_hz * s_hi), spec.n_tones / (f_b_min * s_lo)
+
+
+def _frame_period_range(spec: BarcodeSpec, det: DetectorConfig, n_rows: int
+                        ) -> tuple[float, float]:
+    """`_period_range_rows` capped so that the frame holds at least MIN_SLOTS_IN_FRAME slots
+    (a quarter of a pattern in a small crop is a smooth curve, which anything can fit)."""
+    lo, hi = _period_range_rows(spec, det)
+    return lo, min(hi, n_rows * spec.n_tones / MIN_SLOTS_IN_FRAME)
 
 
 def _periods(luma: PlaneAnalysis, specs, det: DetectorConfig) -> list[float]:

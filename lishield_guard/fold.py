@@ -28,7 +28,7 @@ from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["FoldMatch", "block_coherence_t", "candidate_periods", "fold", "fold_match",
-           "refine_period"]
+           "quiet_weights", "refine_period"]
 
 N_PHASE_BINS = 96
 N_CYCLE_STEPS = 160
@@ -453,16 +453,43 @@ class _Target:
         return tuple(out)
 
 
-def block_coherence_t(blocks_hp: np.ndarray, template_hp: np.ndarray) -> float:
+def quiet_weights(blocks_hp: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """Weights (summing to 1) combining column blocks into the least noisy common row signal.
+
+    Every block carries the same LED signal plus its own scene and noise; the best linear
+    combination weights each block by the inverse of its non-common power, estimated from its
+    residual against the current weighted mean (a few fixed-point iterations from equal
+    weights). A block of sky then counts more than a block of gravel.
+    """
+    y = np.asarray(blocks_hp, dtype=np.float64)
+    k = y.shape[0]
+    w = np.full(k, 1.0 / max(k, 1))
+    for _ in range(iterations if k > 2 else 0):
+        resid = np.mean((y - w @ y) ** 2, axis=1)
+        floor = max(float(resid.max()), 1e-300) * 1e-6
+        inv = 1.0 / np.maximum(resid, floor)
+        w = inv / inv.sum()
+    return w
+
+
+def block_coherence_t(blocks_hp: np.ndarray, template_hp: np.ndarray,
+                      weights: np.ndarray | None = None) -> float:
     """t statistic (unitless, capped at 1e6) of a zero-mean template's least-squares amplitude
     across column blocks (rows of ``blocks_hp``, zero mean): the LED adds the same light to
-    every block, scene structure does not. 0 for a flat template or fewer than 2 blocks."""
+    every block, scene structure does not. 0 for a flat template or fewer than 2 blocks.
+
+    With ``weights`` (inverse noise powers, any scale) the amplitude is their weighted mean and
+    its standard error the weighted one; equal weights give the ordinary one-sample t.
+    """
     tt = float(template_hp @ template_hp)
-    if not tt > 0 or blocks_hp.shape[0] < 2:
+    k = blocks_hp.shape[0]
+    if not tt > 0 or k < 2:
         return 0.0
     amp = blocks_hp @ template_hp / tt
-    mean = float(amp.mean())
-    spread = float(amp.std(ddof=1)) / math.sqrt(amp.size)
+    w = np.ones(k) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    mean = float(w @ amp)
+    spread = math.sqrt(max(float(w @ (amp - mean) ** 2), 0.0) / (k - 1))
     return float(min(mean / max(spread, 1e-12 * max(abs(mean), 1e-30)), 1e6))
 
 
@@ -475,7 +502,8 @@ def _phase_slots(spec: BarcodeSpec, shift: int, exposure_index: int) -> float:
 
 def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
                 scale_range_cpr_per_hz: tuple[float, float], n_starts: int = 0,
-                start_periods: tuple[float, ...] = ()) -> list[SweepMatch | None]:
+                start_periods: tuple[float, ...] = (), weighted: bool = False
+                ) -> list[SweepMatch | None]:
     """Best fit of each target's template tiled over the frame, at any period.
 
     Parameters
@@ -498,6 +526,9 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         fits are offered as starts, at any number of periods in the frame. The grid's step
         drifts 1/12 of a period over the frame, a whole tone cycle for templates of many
         cycles, so a measured repetition period is a far better start there.
+    weighted : bool
+        Estimate the LED from the `quiet_weights` mean of the blocks (and weight the
+        coherence t alike) instead of their plain mean.
 
     Returns
     -------
@@ -507,7 +538,9 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         scene structure is not).
     """
     blocks = np.asarray(blocks, dtype=np.float64)
-    x = blocks.mean(axis=0)
+    weights = (quiet_weights(blocks - blocks.mean(axis=1, keepdims=True)) if weighted
+               else np.full(blocks.shape[0], 1.0 / max(blocks.shape[0], 1)))
+    x = weights @ blocks
     n = x.size
     if n < SWEEP_MIN_ROWS or blocks.shape[0] < 2 or not targets:
         return [None] * len(targets)
@@ -556,6 +589,6 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         f_b = t.spec.f1_hz / float(t.cycles[ci])
         out.append(SweepMatch(t.spec.name, float(rho), rho_alt, float(period),
                               float(t.cycles[ci]), float(SWEEP_EXPOSURES[ei]),
-                              block_coherence_t(xb, tr), n / period, f_b,
+                              block_coherence_t(xb, tr, weights), n / period, f_b,
                               period * f_b / t.spec.n_tones, t.starts(n_starts)))
     return out

@@ -32,11 +32,11 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
-from lishield_guard.fold import block_coherence_t
+from lishield_guard.fold import block_coherence_t, quiet_weights
 from lishield_guard.spec import BarcodeSpec
 
-__all__ = ["ModelFit", "DISPLAY_GAMMA", "linearise", "lookalike_rho", "pattern_knots", "refine",
-           "render_rows", "square_rows"]
+__all__ = ["ModelFit", "DISPLAY_GAMMA", "chroma_leak", "linear_common", "linearise",
+           "lookalike_rho", "pattern_knots", "refine", "render_rows", "square_rows"]
 
 DISPLAY_GAMMA = 2.2  # stored value ~ linear light ** (1 / gamma) (sRGB, unitless)
 HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignored (as fold.py)
@@ -73,6 +73,9 @@ class ModelFit:
         t statistic of the template's amplitude across column blocks (unitless).
     n_periods : float
         Pattern periods the frame holds.
+    chroma_leak : float or None
+        `chroma_leak` of the fitted template's amplitudes in the R, G, B planes; None when
+        not measured (no colour planes, or rho below FIT_RHO_FLOOR).
     domain : str
         Where the fit was made (``"linear"``: linear light, see `refine`).
     """
@@ -87,6 +90,7 @@ class ModelFit:
     exposure_slots: float
     coherence_t: float
     n_periods: float
+    chroma_leak: float | None = None
     domain: str = "linear"
 
     @property
@@ -109,6 +113,8 @@ class ModelFit:
                 "phase_slots": round(self.phase_slots, 3),
                 "exposure_slots": round(self.exposure_slots, 3),
                 "coherence_t": round(self.coherence_t, 2), "n_periods": round(self.n_periods, 2),
+                "chroma_leak": (None if self.chroma_leak is None
+                                else round(self.chroma_leak, 4)),
                 "domain": self.domain}
 
 
@@ -238,8 +244,8 @@ def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray) -> tuple[float, np.ndar
 
 
 def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
-           period_range_rows: tuple[float, float], scale_range_cpr_per_hz: tuple[float, float]
-           ) -> ModelFit | None:
+           period_range_rows: tuple[float, float], scale_range_cpr_per_hz: tuple[float, float],
+           colour_blocks: dict[str, np.ndarray] | None = None) -> ModelFit | None:
     """Refine grid starts of one spec channel with the exact model; fit the look-alike.
 
     Parameters
@@ -255,6 +261,9 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     scale_range_cpr_per_hz : (float, float)
         Row time x downscale range: f_1 must appear at c_1 M / period cycles per row within
         f_1 times this range.
+    colour_blocks : dict, optional
+        ``"R"``, ``"G"``, ``"B"`` -> log contrast per column block of each colour plane (same
+        rows); given, the fit's `chroma_leak` is measured (when rho reaches FIT_RHO_FLOOR).
 
     Returns
     -------
@@ -269,14 +278,13 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     143 positives for twice the time, and higher look-alike-free gains on clean images.
     """
     blocks_log = np.asarray(blocks_log, dtype=np.float64)
-    if not len(starts) or blocks_log.ndim != 2 or blocks_log.shape[1] < 8:
+    p_lo, p_hi = period_range_rows
+    if not len(starts) or blocks_log.ndim != 2 or blocks_log.shape[1] < 8 or p_lo > p_hi:
         return None
-    blocks_lin = linearise(blocks_log)
-    x = blocks_lin.mean(axis=0)
+    x, weights, blocks_lin = linear_common(blocks_log)
     n = blocks_log.shape[1]
     rows = np.arange(n, dtype=np.float64)
     m = spec.n_tones
-    p_lo, p_hi = period_range_rows
     s_lo, s_hi = scale_range_cpr_per_hz
     c_hi = max(1.0, spec.f1_hz / (80.0 * m))
     best: tuple | None = None
@@ -309,9 +317,41 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     tr = hp(render_rows(u, f, m * rows / p + phi, e))
     rho = float(min(rho, 1.0))
     alt = lookalike_rho(y, hp) if rho >= FIT_RHO_FLOOR else None
+    leak = None
+    if colour_blocks is not None and rho >= FIT_RHO_FLOOR:
+        amps = [float(hp(linear_common(colour_blocks[c])[0]) @ tr) for c in "RGB"]
+        leak = chroma_leak(np.array(amps), channel)
     return ModelFit(spec.name, channel, rho, alt,
                     float(p), float(c1), float(phi % m), float(e),
-                    block_coherence_t(hp(blocks_lin), tr), n / float(p))
+                    block_coherence_t(hp(blocks_lin), tr, weights), n / float(p), leak)
+
+
+def linear_common(blocks_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The LED's common row signal in linear light: (`quiet_weights` mean of the blocks'
+    `linearise`d rows, the weights, the linearised blocks)."""
+    blocks_lin = linearise(np.asarray(blocks_log, dtype=np.float64))
+    weights = quiet_weights(blocks_lin - blocks_lin.mean(axis=1, keepdims=True))
+    return weights @ blocks_lin, weights, blocks_lin
+
+
+def chroma_leak(amplitudes_rgb: np.ndarray, channel: str) -> float:
+    """How far a fitted template's amplitudes in the R, G, B planes stray from the colour of
+    the light it models (unitless, capped at 1e6; 0 = exactly the LED's colour).
+
+    A white LED ("W") modulates every plane's linear light alike, (1, 1, 1); an RGB barcode's
+    channel c modulates only its own plane. The leak is the amplitude orthogonal to that
+    direction over the amplitude along it (tan of the angle between them): a grey scene's
+    structure fitted by a red channel's template shows in every plane (leak sqrt 2), and a
+    coloured scene's edge fitted by a white template differs between planes. The cap applies
+    when the amplitude along the LED's colour is not positive.
+    """
+    a = np.asarray(amplitudes_rgb, dtype=np.float64)
+    chi = np.ones(3) if channel == "W" else np.array([float(c == channel) for c in "RGB"])
+    chi /= np.linalg.norm(chi)
+    along = float(a @ chi)
+    if not along > 0:
+        return 1e6
+    return float(min(np.linalg.norm(a - along * chi) / along, 1e6))
 
 
 def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows: float,

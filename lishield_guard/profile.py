@@ -5,10 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["block_row_profiles", "detrend_profiles", "gaussian_smooth"]
+__all__ = ["block_row_profiles", "detrend_profiles", "gaussian_smooth", "merge_blocks"]
 
 
-def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0) -> np.ndarray:
+def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0,
+                       sub_blocks: int = 1) -> np.ndarray:
     """Mean brightness of every row within each of ``n_col_blocks`` column blocks.
 
     Parameters
@@ -20,11 +21,14 @@ def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0) -
     axis : {0, 1}
         0 profiles sensor rows (stripes run along rows); 1 profiles columns instead, as if the
         image were transposed (rotation baked into pixels).
+    sub_blocks : int
+        Split every block into this many equal sub-blocks (nested: `merge_blocks` recovers the
+        blocks' own means exactly).
 
     Returns
     -------
-    profiles : ndarray of shape (n_blocks, n_rows), float32
-        ``profiles[b, i]`` is the mean of row i over block b.
+    profiles : ndarray of shape (n_blocks * sub_blocks, n_rows), float32
+        ``profiles[b, i]`` is the mean of row i over (sub-)block b.
 
     Notes
     -----
@@ -33,9 +37,9 @@ def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0) -
     """
     n_rows, n_cols = plane.shape if axis == 0 else plane.shape[::-1]
     src = plane if plane.dtype in (np.uint8, np.uint16, np.float32) else plane.astype(np.float32)
-    n_blocks = max(1, min(int(n_col_blocks), n_cols))
-    out = np.empty((n_blocks, n_rows), dtype=np.float32)
-    for b, (c0, c1) in enumerate(_edges(n_cols, n_blocks)):
+    spans = _nested_edges(n_cols, int(n_col_blocks), int(sub_blocks))
+    out = np.empty((len(spans), n_rows), dtype=np.float32)
+    for b, (c0, c1) in enumerate(spans):
         if axis == 0:
             out[b] = cv2.reduce(src[:, c0:c1], 1, cv2.REDUCE_AVG, dtype=cv2.CV_32F)[:, 0]
         else:  # blocks of sensor columns are blocks of stored rows
@@ -46,6 +50,26 @@ def block_row_profiles(plane: np.ndarray, *, n_col_blocks: int, axis: int = 0) -
 def _edges(n: int, k: int) -> list[tuple[int, int]]:
     cuts = np.linspace(0, n, k + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b > a]
+
+
+def _nested_edges(n: int, k: int, sub: int) -> list[tuple[int, int]]:
+    """Column spans of ``k`` blocks (clipped to n), each split into up to ``sub`` parts."""
+    return [(a + s0, a + s1) for a, b in _edges(n, max(1, min(k, n)))
+            for s0, s1 in _edges(b - a, max(1, min(sub, b - a)))]
+
+
+def merge_blocks(fine: np.ndarray, n_cols: int, n_col_blocks: int, sub_blocks: int) -> np.ndarray:
+    """Block profiles from the sub-block profiles of `block_row_profiles` (column-weighted
+    means of each block's sub-blocks); ``n_cols`` is the profiled axis' column count."""
+    coarse = _edges(n_cols, max(1, min(n_col_blocks, n_cols)))
+    out = np.empty((len(coarse), fine.shape[1]), dtype=np.float32)
+    i = 0
+    for b, (a, z) in enumerate(coarse):
+        parts = _edges(z - a, max(1, min(sub_blocks, z - a)))
+        w = np.array([s1 - s0 for s0, s1 in parts], dtype=np.float64)
+        out[b] = (w / w.sum()) @ fine[i:i + len(parts)].astype(np.float64)
+        i += len(parts)
+    return out
 
 
 def detrend_profiles(profiles: np.ndarray, *, sigma_rows: float) -> tuple[np.ndarray, np.ndarray]:

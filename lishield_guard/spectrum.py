@@ -95,7 +95,8 @@ class PlaneAnalysis:
 
     ``common`` is the common log-contrast row signal (n_rows,), used by pattern folding;
     ``blocks`` the log contrast of each usable column block (n_blocks, n_rows), used by the
-    period sweep's coherence test.
+    period sweep's coherence test; ``fine_blocks`` the same for narrower sub-blocks, used by
+    the exact-model fit to weight the columns by how quiet their scene is.
     """
 
     n_rows: int
@@ -104,6 +105,7 @@ class PlaneAnalysis:
     skipped: tuple[str, ...]
     common: np.ndarray | None = None
     blocks: np.ndarray | None = None
+    fine_blocks: np.ndarray | None = None
 
     @property
     def max_significant_fraction(self) -> float:
@@ -131,7 +133,8 @@ def _usable_blocks(profiles: np.ndarray, full_scale: float) -> tuple[np.ndarray,
 
 
 def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple[float, float],
-                     trend_sigma_rows: float, false_prob: float) -> PlaneAnalysis:
+                     trend_sigma_rows: float, false_prob: float,
+                     fine_profiles: np.ndarray | None = None) -> PlaneAnalysis:
     """Frequency tracks for the block row profiles of one plane.
 
     Parameters
@@ -146,6 +149,8 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         Gaussian trend filter sigma, rows.
     false_prob : float
         Probability that a frame of pure noise passes the significance test.
+    fine_profiles : ndarray of shape (n_sub_blocks, n_rows), optional
+        Row means of narrower sub-blocks; their usable ones are kept as ``fine_blocks``.
     """
     n_blocks, n_rows = profiles.shape
     keep, skipped = _usable_blocks(profiles, full_scale)
@@ -169,8 +174,14 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         if t_lo >= hi:
             continue
         tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale))
+    fine = None
+    if fine_profiles is not None:
+        fine_keep, _ = _usable_blocks(fine_profiles, full_scale)
+        if fine_keep.sum() >= 2:
+            fine = detrend_profiles(fine_profiles[fine_keep],
+                                    sigma_rows=trend_sigma_rows)[0].astype(np.float32)
     return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32),
-                         contrast.astype(np.float32))
+                         contrast.astype(np.float32), fine)
 
 
 def _frames(x: np.ndarray, w: int, hop: int) -> np.ndarray:

@@ -127,3 +127,19 @@ def test_refinement_stays_inside_the_period_range(rng):
 
     img = rng.integers(0, 256, (64, 200), dtype=np.uint8)
     assert not detect(img, DetectorConfig(max_row_rate_hz=200_000.0)).protected
+
+
+def test_fit_periods_leave_two_slots_in_the_frame():
+    """A small crop holds a fraction of a pattern: a smooth curve anything fits. Sweep and
+    exact fit only try periods that leave two slots (two tones) in the frame."""
+    from lishield_guard import default_config
+    from lishield_guard.detect import MIN_SLOTS_IN_FRAME, _frame_period_range, _period_range_rows
+
+    det = default_config().detector
+    spec = PRESETS["table1-seq1"]
+    lo, hi = _period_range_rows(spec, det)
+    assert _frame_period_range(spec, det, 100_000) == (lo, hi)  # tall frames: physics only
+    n_rows = 278
+    f_lo, f_hi = _frame_period_range(spec, det, n_rows)
+    assert f_lo == lo and f_hi == pytest.approx(n_rows * spec.n_tones / MIN_SLOTS_IN_FRAME)
+    assert n_rows / f_hi * spec.n_tones == pytest.approx(2.0)
