@@ -108,8 +108,7 @@ def main() -> int:
                "grid_ideal": sm.rho if sm else float("nan"),
                "truth_lin": corr(linearise(pa.blocks).mean(axis=0)),
                "truth_log": corr(pa.blocks.mean(axis=0).astype(np.float64)),
-               "truth_w": corr(linear_common(pa.fine_blocks if pa.fine_blocks is not None
-                                             else pa.blocks)[0]),
+               "truth_w": corr(linear_common(pa.fit_blocks)[0]),
                "detected": detect(args.dataset / it["file"], cfg).protected}
         rows.append(row)
         print(f"{row['file']} {row['preset']:12s} grid_ideal {row['grid_ideal']:.3f}  truth_lin "

@@ -151,6 +151,10 @@ def images_needed(target_far: float, confidence: float = CONFIDENCE) -> int:
 # ----------------------------------------------------------------------------- grids
 
 
+SWEEP_KEYS = ("sweep_min_rho", "sweep_min_margin", "sweep_min_coherence", "fit_min_rho",
+              "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb")
+
+
 @dataclass(frozen=True)
 class DefaultGrid:
     """Values swept for the default profile (all unitless)."""
@@ -173,9 +177,8 @@ class DefaultGrid:
         (0.9, 4.0, 0.0))
 
     def sweep_combos(self) -> list[tuple[float, ...]]:
-        """(sweep_min_rho, sweep_min_margin, sweep_min_coherence, fit_min_rho, fit_min_gain,
-        fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb) of the period sweep and its
-        exact-model refinement (gain inf: no refinement; leak 0: no colour-verified path)."""
+        """Values of `SWEEP_KEYS` for the period sweep and its exact-model refinement (gain
+        inf: no refinement; leak 0: no colour-verified path)."""
         return [(*a, *b) for a, b in itertools.product(
             itertools.product(self.sweep_min_rho, self.sweep_min_margin,
                               self.sweep_min_coherence, self.fit_min_rho, self.fit_min_gain),
@@ -443,10 +446,8 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
                           fold_protected(folds, det.replace(fold_min_rho=r)))
                          for r in fold_min_rho]
     if sweeps is not None and det is not None and det.period_sweep:
-        names = ("sweep_min_rho", "sweep_min_margin", "sweep_min_coherence", "fit_min_rho",
-                 "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb")
-        sweep_variants = [(tuple(zip(names, combo, strict=True)),
-                           sweep_protected(sweeps, det.replace(**dict(zip(names, combo,
+        sweep_variants = [(tuple(zip(SWEEP_KEYS, combo, strict=True)),
+                           sweep_protected(sweeps, det.replace(**dict(zip(SWEEP_KEYS, combo,
                                                                           strict=True)))))
                           for combo in grid.sweep_combos()]
         fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants

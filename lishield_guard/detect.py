@@ -311,7 +311,7 @@ def _colour_blocks(planes: dict[str, PlaneAnalysis]) -> dict[str, np.ndarray] | 
         pa = planes.get(c)
         if pa is None or pa.blocks is None:
             return None
-        out[c] = pa.blocks if pa.fine_blocks is None else pa.fine_blocks
+        out[c] = pa.fit_blocks
     return out
 
 
@@ -333,7 +333,7 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
     out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
     for pa, targets in by_plane.values():
         ranges = [_frame_period_range(s, det, pa.n_rows) for s, _ in targets]
-        blocks = pa.blocks if pa.fine_blocks is None else pa.fine_blocks
+        blocks = pa.fit_blocks
         fits = sweep_match(blocks, targets, scale_range_cpr_per_hz=scale,
                            period_range_rows=ranges,
                            n_starts=FIT_STARTS if det.model_fit else 0,

@@ -28,7 +28,7 @@ from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["FoldMatch", "block_coherence_t", "candidate_periods", "fold", "fold_match",
-           "quiet_weights", "refine_period"]
+           "highpass_gain", "mirror_rfft", "quiet_weights", "refine_period"]
 
 N_PHASE_BINS = 96
 N_CYCLE_STEPS = 160
@@ -345,22 +345,31 @@ def _period_grid(n_rows: int, lo: float, hi: float, drift: float) -> np.ndarray:
     return np.array(out)
 
 
+def mirror_rfft(x: np.ndarray) -> np.ndarray:
+    """Spectrum of x mirror-extended to twice its length along the last axis (no edge jump)."""
+    return np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
+
+
+def highpass_gain(n_rows: int, sigma_rows: float) -> np.ndarray:
+    """Gain, on `mirror_rfft`'s bins, of x minus its Gaussian trend of sigma ``sigma_rows``."""
+    f2 = np.fft.rfftfreq(2 * n_rows) ** 2
+    return 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * f2)
+
+
 def _highpass_fn(x: np.ndarray):
     """A function of the period returning x minus its Gaussian trend of sigma
     period / (2 pi HIGHPASS_CYCLES) rows, along the last axis (mirror-extended, in the
     frequency domain). Sigma is rounded to a 5 % grid and results are reused: neighbouring
     periods of a sweep share one trend."""
     n = x.shape[-1]
-    spec = np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
-    f2 = np.fft.rfftfreq(2 * n) ** 2
+    spec = mirror_rfft(x)
     memo: dict[int, np.ndarray] = {}
 
     def highpassed(period_rows: float) -> np.ndarray:
         key = int(round(math.log(period_rows / (2 * math.pi * HIGHPASS_CYCLES)) / 0.05))
         hit = memo.get(key)
         if hit is None:
-            sigma = math.exp(key * 0.05)
-            gain = 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma ** 2 * f2)
+            gain = highpass_gain(n, math.exp(key * 0.05))
             hit = memo[key] = np.fft.irfft(spec * gain, n=2 * n, axis=-1)[..., :n]
         return hit
 
@@ -453,15 +462,17 @@ class _Target:
         return tuple(out)
 
 
-def quiet_weights(blocks_hp: np.ndarray, iterations: int = 4) -> np.ndarray:
+def quiet_weights(blocks: np.ndarray, iterations: int = 4) -> np.ndarray:
     """Weights (summing to 1) combining column blocks into the least noisy common row signal.
 
     Every block carries the same LED signal plus its own scene and noise; the best linear
     combination weights each block by the inverse of its non-common power, estimated from its
     residual against the current weighted mean (a few fixed-point iterations from equal
-    weights). A block of sky then counts more than a block of gravel.
+    weights; each block's own mean is removed first). A block of sky then counts more than a
+    block of gravel.
     """
-    y = np.asarray(blocks_hp, dtype=np.float64)
+    y = np.asarray(blocks, dtype=np.float64)
+    y = y - y.mean(axis=-1, keepdims=True)
     k = y.shape[0]
     w = np.full(k, 1.0 / max(k, 1))
     for _ in range(iterations if k > 2 else 0):
@@ -538,7 +549,7 @@ def sweep_match(blocks: np.ndarray, targets, *, period_range_rows,
         scene structure is not).
     """
     blocks = np.asarray(blocks, dtype=np.float64)
-    weights = (quiet_weights(blocks - blocks.mean(axis=1, keepdims=True)) if weighted
+    weights = (quiet_weights(blocks) if weighted
                else np.full(blocks.shape[0], 1.0 / max(blocks.shape[0], 1)))
     x = weights @ blocks
     n = x.size

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
-from lishield_guard.fold import block_coherence_t, quiet_weights
+from lishield_guard.fold import block_coherence_t, highpass_gain, mirror_rfft, quiet_weights
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["ModelFit", "DISPLAY_GAMMA", "chroma_leak", "linear_common", "linearise",
@@ -217,12 +217,10 @@ def square_rows(u_cycles: np.ndarray, duty: float, exposure_cycles: float) -> np
 
 def _highpass(n_rows: int, sigma_rows: float):
     """x minus its Gaussian trend (mirror-extended, by FFT) along the last axis."""
-    f2 = np.fft.rfftfreq(2 * n_rows) ** 2
-    gain = 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * f2)
+    gain = highpass_gain(n_rows, sigma_rows)
 
     def apply(x: np.ndarray) -> np.ndarray:
-        spec = np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
-        out = np.fft.irfft(spec * gain, n=2 * n_rows, axis=-1)[..., :n_rows]
+        out = np.fft.irfft(mirror_rfft(x) * gain, n=2 * n_rows, axis=-1)[..., :n_rows]
         return out - out.mean(axis=-1, keepdims=True)
 
     return apply
@@ -330,7 +328,7 @@ def linear_common(blocks_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     """The LED's common row signal in linear light: (`quiet_weights` mean of the blocks'
     `linearise`d rows, the weights, the linearised blocks)."""
     blocks_lin = linearise(np.asarray(blocks_log, dtype=np.float64))
-    weights = quiet_weights(blocks_lin - blocks_lin.mean(axis=1, keepdims=True))
+    weights = quiet_weights(blocks_lin)
     return weights @ blocks_lin, weights, blocks_lin
 
 

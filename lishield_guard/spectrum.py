@@ -108,6 +108,11 @@ class PlaneAnalysis:
     fine_blocks: np.ndarray | None = None
 
     @property
+    def fit_blocks(self) -> np.ndarray | None:
+        """The blocks the sweep and the exact fit weigh: sub-blocks where analysed."""
+        return self.blocks if self.fine_blocks is None else self.fine_blocks
+
+    @property
     def max_significant_fraction(self) -> float:
         """Largest significant fraction over all tracks (0 when there are none)."""
         return max((t.significant_fraction for t in self.tracks), default=0.0)
