@@ -482,21 +482,6 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
                    score=m.score)
 
 
-def _luma_shows_stripes(luma: PlaneAnalysis, found, det: DetectorConfig) -> bool:
-    """Whether luma holds anything an RGB barcode could be (else colour planes are skipped).
-
-    Luma carries every colour's stripes: either its tone tracks hold significant peaks, or a
-    period-sweep template fits it with the same amplitude in every column block.
-    """
-    if luma.max_significant_fraction >= det.min_occupancy:
-        return True
-    if det.period_sweep and not found:  # no monochrome spec swept luma: nothing to go on
-        return True
-    return det.period_sweep and any(
-        m.sweep is not None and m.sweep["rho"] >= det.sweep_min_rho
-        and m.sweep["coherence_t"] >= det.sweep_min_coherence for _, m in found)
-
-
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
     det = _scaled(config.detector, decoded.row_scale)
     skipped: list[str] = []
@@ -522,18 +507,16 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
         with timer("match"):
             found = _decide_axis(planes, mono, det)
         if rgb and not any(m.protected for _, m in found):
-            if not _luma_shows_stripes(planes["L"], found, det):
-                skipped.append(f"{name}: colour planes (no significant or coherent stripes "
-                               f"in luma)")
-            else:
-                if decoded.is_color:
-                    with timer("profile_color"):
-                        colour = decoded.rgb()
-                        planes.update({c: _analyse(colour[:, :, i], axis, config,
-                                                   decoded.row_scale)
-                                       for i, c in enumerate("RGB")})
-                with timer("match"):
-                    found += _decide_axis(planes, rgb, det)
+            # Colour planes whenever luma is not decisive: an RGB barcode's channels can
+            # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
+            if decoded.is_color:
+                with timer("profile_color"):
+                    colour = decoded.rgb()
+                    planes.update({c: _analyse(colour[:, :, i], axis, config,
+                                               decoded.row_scale)
+                                   for i, c in enumerate("RGB")})
+            with timer("match"):
+                found += _decide_axis(planes, rgb, det)
         elif rgb:
             skipped.append(f"{name}: colour planes (luma verdict certain)")
         candidates += [(name, pid, m) for pid, m in found]

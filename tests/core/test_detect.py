@@ -109,3 +109,37 @@ def test_luma_verdict_skips_colour_planes(make_led_image):
     v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
     assert v.protected
     assert any("colour planes" in s for s in v.skipped)
+
+
+# An RGB barcode lit only by the LED (scikit-image camera photo, 1/1450 s exposure): its colour stripes are
+# glaring, but no monochrome template fits its luma (sweep rho 0.71). Gating the colour planes
+# on luma stripes once missed it; the lazy verdict must equal the all-planes one.
+_RGB_HIDDEN_IN_LUMA = {
+    "ambient_ratio": 0.0, "attack": False, "attacked_tone": None, "channels": ["R", "G", "B"],
+    "chroma_subsampling": "4:2:0",
+    "coverage": {"centre_rc": None, "fraction": 1.0, "softness": None}, "downscale": 1.0,
+    "exposure_s": 0.0006902656873207615, "frame_start_s": 0.36511817717720985,
+    "jpeg_quality": 90, "kind": "barcode", "label": 1,
+    "light": {"kind": "led", "preset": "table2-rgb", "switching_hz": 245.13},
+    "noise": True, "noise_seed": 6911785366879873182, "preset": "table2-rgb",
+    "rotation_deg": 0, "rotation_mode": "none", "row_rate_hz": 67188.48549157754,
+    "scene_kind": "photo", "scene_seed": 673200821269392799,
+    "sensor_cols": 1920, "sensor_rows": 1080, "switching_hz": 245.13,
+    "tones_hz": {"B": [1600.0, 1800.0, 2000.0], "G": [1000.0, 1200.0, 1400.0],
+                 "R": [400.0, 600.0, 800.0]},
+}
+
+
+def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
+    from lishield_guard.decode import decode
+    from lishield_guard.detect import collect_evidence, decide
+    from synth.dataset import render_item
+
+    data, _ = render_item(_RGB_HIDDEN_IN_LUMA)
+    cfg = default_config()
+    lazy = detect(data, cfg)
+    full = decide(collect_evidence(decode(data, limits=cfg.limits, fast=True,
+                                          max_rows=cfg.detector.max_decode_rows), cfg), cfg)
+    assert lazy.protected and lazy.policy == "no-distribution"
+    assert not any("colour planes" in s for s in lazy.skipped)
+    assert (lazy.protected, lazy.evidence["reason"]) == (full.protected, full.evidence["reason"])
