@@ -111,9 +111,10 @@ def test_luma_verdict_skips_colour_planes(make_led_image):
     assert any("colour planes" in s for s in v.skipped)
 
 
-# An RGB barcode lit only by the LED (scikit-image camera photo, 1/1450 s exposure): its colour stripes are
-# glaring, but no monochrome template fits its luma (sweep rho 0.71). Gating the colour planes
-# on luma stripes once missed it; the lazy verdict must equal the all-planes one.
+# An RGB barcode lit only by the LED (scikit-image camera photo, 1/1450 s exposure): its
+# colour stripes are glaring, but no monochrome template fits its luma (sweep rho 0.71).
+# Gating the colour planes on luma stripes once missed it; the lazy verdict must equal the
+# all-planes one.
 _RGB_HIDDEN_IN_LUMA = {
     "ambient_ratio": 0.0, "attack": False, "attacked_tone": None, "channels": ["R", "G", "B"],
     "chroma_subsampling": "4:2:0",
