@@ -43,10 +43,10 @@ HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignore
 MAX_EXPOSURE_SLOTS = 4.0  # t_e x f_B: 1/500 s at f_B = 1600 Hz is 3.2 slots; the attack <= 3
 MIN_BOX = 1e-3  # exposures shorter than this (slots or cycles) are treated as this
 MAX_EVALS = 160  # Nelder-Mead evaluations per start
-SCAN_PHASES = 16  # fewest phases (per pattern period) scanned around each start
-SCAN_MAX_PHASES = 64
-SCAN_CYCLE_RATIOS = (0.86, 0.895, 0.93, 0.965, 1.0, 1.035, 1.07, 1.105, 1.14)  # c_1 scanned
-SCAN_EXPOSURES = (0.0, 0.25, 0.6, 1.0, 1.35, 2.0)  # exposures scanned, slots
+SCAN_CYCLE_STEP = 1.015  # c_1 scanned on a geometric grid of this ratio over its whole range
+SCAN_EXPOSURE_STEP_SLOTS = 0.1  # exposures scanned from 0 to M slots (e and e + M fit alike)
+SCAN_MIN_PHASES = 256  # phases per pattern period scanned (more when the template needs them)
+SCAN_HARMONICS_PER_CYCLE = 4  # template harmonics kept per cycle of the fastest tone per slot
 SQUARE_DUTIES = (0.1, 0.3, 0.5, 0.7, 0.9)
 SQUARE_EXPOSURES = (0.0, 0.3, 0.7)  # box widths in cycles of the look-alike
 SQUARE_PHASES = 8
@@ -153,6 +153,11 @@ class _KnotMaker:
         on[1:-1:2], on[2:-1:2] = cum[:-1], cum[1:]
         u[-1], on[-1] = float(self.m), cum[-1]
         return u, on
+
+    def on_intervals(self, cycles_f1: float) -> tuple[np.ndarray, np.ndarray]:
+        """Starts and ends (slots) of the ON intervals of one pattern period."""
+        inner = self(cycles_f1)[0][1:-1]
+        return inner[0::2], inner[1::2]
 
 
 def pattern_knots(spec: BarcodeSpec, channel: str, cycles_f1: float
@@ -294,7 +299,10 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
                                min(max(e0, 0.0), MAX_EXPOSURE_SLOTS)])
         y = hp(x)
         yy = float(y @ y)
-        scanned = np.array([p0, *_scan_start(knots, hp, y, rows, m, p0, grid_start[1], c_hi)])
+        # c_1 such that f_1 lands at c_1 M / p0 cycles per row within the scale range
+        c_scan = (max(1.0, s_lo * p0 * spec.f1_hz / m), min(c_hi, s_hi * p0 * spec.f1_hz / m))
+        scanned = np.array([p0, *_scan_start(knots, y, m, p0, c_scan,
+                                             p0 / (2 * math.pi * HIGHPASS_CYCLES))])
 
         def loss(th, hp=hp, y=y, yy=yy):
             p, c1, phi, e = th
@@ -352,34 +360,49 @@ def chroma_leak(amplitudes_rgb: np.ndarray, channel: str) -> float:
     return float(min(np.linalg.norm(a - along * chi) / along, 1e6))
 
 
-def _scan_start(knots, hp, y: np.ndarray, rows: np.ndarray, m: int, period_rows: float,
-                cycles_f1: float, c_hi: float) -> tuple[float, float, float]:
-    """Best (c_1, phase, exposure) near a grid start, by exhaustive exact-model
-    correlation (of the centred, not high-passed, template: a ranking) at the start's period:
-    the grid's binned templates place the phase only roughly, and the correlation is
-    multimodal in phase (one mode per tone cycle)."""
-    # a third of the fastest tone's cycle per phase step
-    n_phases = int(min(max(math.ceil(3 * m * cycles_f1 * knots.rel.max()), SCAN_PHASES),
-                       SCAN_MAX_PHASES))
-    phases = np.arange(n_phases) * (m / n_phases)
-    best = (-2.0, cycles_f1, 0.0, 0.0)
+def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
+                c_range: tuple[float, float], sigma_rows: float) -> tuple[float, float, float]:
+    """Best (c_1, phase, exposure) at a start's period, over the whole c_1 range, every
+    exposure and every phase, from the template's Fourier series (a ranking for Nelder-Mead).
+
+    A pattern period's template is t(u) = sum_k T_k exp(2 pi i k u / M) with T_k the ON
+    intervals' Fourier coefficients times the exposure box's transfer; row i sits at
+    u_i = M i / P + phi. Its correlation with the high-passed rows y is
+    2 Re sum_k g_k T_k conj(Y_k) exp(2 pi i k phi / M), Y_k = sum_i y_i exp(-2 pi i k i / P)
+    and g_k the high-pass gain at k / P: one inverse FFT gives every phase at once, and the
+    template's high-passed power is n sum_k |g_k T_k|^2 * 2 (exact for whole periods, close
+    otherwise). The c_1 grid's ratio steps keep the fastest tone's drift over a slot small.
+    """
     yy = float(y @ y)
-    if not yy > 0:
-        return best[1:]
-    for c in sorted({min(max(cycles_f1 * r, 1.0), c_hi) for r in SCAN_CYCLE_RATIOS}):
-        u, f = knots(float(c))
-        base = m * rows / period_rows
-        bank = np.concatenate([render_rows(u, f, base[None, :] + phases[:, None], e)
-                               for e in SCAN_EXPOSURES])
-        # ranking only: the bank is centred, not high-passed (y is), which saves a large
-        # batched FFT per c_1; Nelder-Mead then works with the exact high-passed template
-        bank -= bank.mean(axis=1, keepdims=True)
-        norms = np.sqrt(np.maximum((bank * bank).sum(axis=1), 1e-30))
-        rho = bank @ y / norms / math.sqrt(yy)
-        k = int(np.argmax(rho))
-        if rho[k] > best[0]:
-            best = (float(rho[k]), float(c), float(phases[k % n_phases]),
-                    float(SCAN_EXPOSURES[k // n_phases]))
+    c_lo, c_hi = c_range
+    if not yy > 0 or c_lo > c_hi:
+        c = min(max(c_lo, 1.0), max(c_hi, 1.0))
+        return c, 0.0, 0.0
+    n = y.size
+    k_max = int(max(1, min(period_rows / 2.0 - 1.0,
+                           SCAN_HARMONICS_PER_CYCLE * m * c_hi * knots.rel.max() + 8)))
+    k = np.arange(1, k_max + 1, dtype=np.float64)
+    y_k = np.exp(np.outer(k, np.arange(n)) * (-2j * math.pi / period_rows)) @ y
+    g = 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * (k / period_rows) ** 2)
+    n_phases = 1 << int(math.ceil(math.log2(max(SCAN_MIN_PHASES, 4 * k_max))))
+    exposures = np.arange(0.0, m + 1e-9, SCAN_EXPOSURE_STEP_SLOTS)
+    w = np.outer(np.maximum(exposures, MIN_BOX), k) * (2j * math.pi / m)
+    box = np.expm1(w) / w  # (n_exposures, K): mean over [u, u + e] of exp(2 pi i k u / M)
+    n_c = int(math.floor(math.log(c_hi / c_lo) / math.log(SCAN_CYCLE_STEP))) + 1
+    best = (-2.0, c_lo, 0.0, 0.0)
+    z = np.zeros((exposures.size, n_phases), dtype=np.complex128)
+    for c in c_lo * SCAN_CYCLE_STEP ** np.arange(n_c):
+        a, b = knots.on_intervals(float(c))
+        ka = np.outer(k, a) * (-2j * math.pi / m)
+        kb = np.outer(k, b) * (-2j * math.pi / m)
+        t_k = box * ((np.exp(ka) - np.exp(kb)).sum(axis=1) / (2j * math.pi * k))
+        z[:, 1:k_max + 1] = t_k * (g * np.conj(y_k))
+        num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
+        norms = np.sqrt(np.maximum(2.0 * n * (np.abs(t_k * g) ** 2).sum(axis=1), 1e-30) * yy)
+        rho = num / norms[:, None]
+        i_e, i_p = np.unravel_index(int(np.argmax(rho)), rho.shape)
+        if rho[i_e, i_p] > best[0]:
+            best = (float(rho[i_e, i_p]), float(c), m * i_p / n_phases, float(exposures[i_e]))
     return best[1:]
 
 
