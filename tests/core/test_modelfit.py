@@ -170,3 +170,22 @@ def test_fit_decides_where_the_grid_cannot(rng):
     assert not _grid_passes(info, det)
     assert fit_passes(info["fit"], det), info["fit"]
     assert info["fit"]["period_rows"] == pytest.approx(period, rel=0.01)
+
+
+@pytest.mark.parametrize("name, f_b, rate, exposure_s, c1_start", [
+    ("table1-seq1", 250.0, 70_000, 2 / 400, 0.65),  # exposure attack: 1.25 slots, 2 cycles
+    ("table1-seq3", 600.0, 50_000, 1 / 900, 1.6),  # 0.67 slot, c_1 far above the start
+])
+def test_refinement_scans_all_of_c1_and_exposure(rng, name, f_b, rate, exposure_s, c1_start):
+    """A start at the right period but the wrong c_1, phase and exposure still converges:
+    the scan covers every c_1 the scale range allows and exposures beyond one slot."""
+    spec = PRESETS[name]
+    x = _capture(spec, f_b=f_b, rate=rate, exposure_s=exposure_s, t0=1.7e-3)
+    period = spec.n_tones / f_b * rate
+    c1 = spec.f1_hz / f_b
+    start = (0.6, period, c1 * c1_start, 0.0, 0.0)
+    fit = refine(_blocks(x, rng, 0.002), spec, "W", [start], period_range_rows=(8.0, 4000.0),
+                 scale_range_cpr_per_hz=SCALE)
+    assert fit.rho > 0.97
+    assert fit.cycles_f1 == pytest.approx(c1, rel=0.02)
+    assert fit.exposure_slots % spec.n_tones == pytest.approx(exposure_s * f_b, abs=0.06)
