@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import time
 from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from lishield_guard import AppConfig, detect, load_config
@@ -49,6 +51,15 @@ def decided_by(verdict) -> str:
     return "tones"
 
 
+def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float]:
+    """One image's verdict: (protected, deciding default-profile stage or None, ms)."""
+    t0 = time.perf_counter()
+    v = detect(path, cfg)
+    ms = (time.perf_counter() - t0) * 1e3
+    stage = decided_by(v) if v.protected and v.profile == "default" else None
+    return bool(v.protected), stage, ms
+
+
 def main() -> int:
     """Run every profile over DIR/manifest.jsonl and print the table (and --json)."""
     ap = argparse.ArgumentParser(description=__doc__)
@@ -57,7 +68,11 @@ def main() -> int:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--config", type=Path, default=None,
                     help="TOML config (default: the shipped lishield_guard/data/default.toml)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--per-image", type=Path, default=None,
+                    help="write one JSON line per image and profile here")
     args = ap.parse_args()
+    per_image: list[dict] = []
     items = [json.loads(ln) for ln in (args.dataset / "manifest.jsonl").read_text().splitlines()
              if ln.strip()]
     base = load_config(args.config)
@@ -67,16 +82,25 @@ def main() -> int:
                         policies=base.policies)
         stats: dict[str, list[int]] = defaultdict(lambda: [0, 0])
         t0 = time.perf_counter()
-        for it in items:
-            v = detect(args.dataset / it["file"], cfg)
+        paths = [args.dataset / it["file"] for it in items]
+        with ProcessPoolExecutor(args.jobs) as pool:
+            outcomes = list(pool.map(_judge, paths, [cfg] * len(paths), chunksize=4))
+        for it, (protected, stage, ms) in zip(items, outcomes, strict=True):
             extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]
-            if v.protected and profile == "default":
-                extra.append(f"decided-by:{decided_by(v)}:{'pos' if it['label'] else 'neg'}")
+            if protected and profile == "default":
+                extra.append(f"decided-by:{stage}:{'pos' if it['label'] else 'neg'}")
             for k in kinds(it) + extra:
-                stats[k][0] += int(v.protected)
+                stats[k][0] += int(protected)
                 stats[k][1] += 1
+            if args.per_image:
+                per_image.append({"file": it["file"], "profile": profile,
+                                  "label": it["label"], "protected": protected,
+                                  "decided_by": stage, "ms": round(ms, 1)})
         dt = time.perf_counter() - t0
-        print(f"\nprofile={profile}  ({len(items)} images, {dt / len(items) * 1e3:.1f} ms/image)")
+        med = statistics.median(ms for _, _, ms in outcomes) if outcomes else 0.0
+        print(f"\nprofile={profile}  ({len(items)} images, {args.jobs} processes, "
+              f"{dt / len(items) * 1e3:.1f} ms/image wall, median {med:.1f} ms per image "
+              f"in a process)")
         print(f"{'kind':22s} {'flagged':>8s} {'n':>5s} {'rate':>7s}  95% CI")
         rows = {}
         for k in sorted(stats):
@@ -87,6 +111,8 @@ def main() -> int:
         report[profile] = rows
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
+    if args.per_image:
+        args.per_image.write_text("".join(json.dumps(r) + "\n" for r in per_image))
     return 0
 
 
