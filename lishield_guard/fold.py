@@ -28,7 +28,7 @@ from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["FoldMatch", "block_coherence_t", "candidate_periods", "fold", "fold_match",
-           "highpass_gain", "mirror_rfft", "quiet_weights", "refine_period"]
+           "highpass_gain", "highpass_gain_at", "mirror_rfft", "quiet_weights", "refine_period"]
 
 N_PHASE_BINS = 96
 N_CYCLE_STEPS = 160
@@ -350,10 +350,15 @@ def mirror_rfft(x: np.ndarray) -> np.ndarray:
     return np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
 
 
+def highpass_gain_at(freqs_cpr: np.ndarray, sigma_rows: float) -> np.ndarray:
+    """Gain at ``freqs_cpr`` (cycles per row) of x minus its Gaussian trend of sigma
+    ``sigma_rows``."""
+    return 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * np.square(freqs_cpr))
+
+
 def highpass_gain(n_rows: int, sigma_rows: float) -> np.ndarray:
-    """Gain, on `mirror_rfft`'s bins, of x minus its Gaussian trend of sigma ``sigma_rows``."""
-    f2 = np.fft.rfftfreq(2 * n_rows) ** 2
-    return 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * f2)
+    """`highpass_gain_at` on `mirror_rfft`'s bins."""
+    return highpass_gain_at(np.fft.rfftfreq(2 * n_rows), sigma_rows)
 
 
 def _highpass_fn(x: np.ndarray):

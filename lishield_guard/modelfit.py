@@ -32,7 +32,13 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
-from lishield_guard.fold import block_coherence_t, highpass_gain, mirror_rfft, quiet_weights
+from lishield_guard.fold import (
+    block_coherence_t,
+    highpass_gain,
+    highpass_gain_at,
+    mirror_rfft,
+    quiet_weights,
+)
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["ModelFit", "DISPLAY_GAMMA", "chroma_leak", "linear_common", "linearise",
@@ -383,7 +389,7 @@ def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
                            SCAN_HARMONICS_PER_CYCLE * m * c_hi * knots.rel.max() + 8)))
     k = np.arange(1, k_max + 1, dtype=np.float64)
     y_k = np.exp(np.outer(k, np.arange(n)) * (-2j * math.pi / period_rows)) @ y
-    g = 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * (k / period_rows) ** 2)
+    g = highpass_gain_at(k / period_rows, sigma_rows)
     n_phases = 1 << int(math.ceil(math.log2(max(SCAN_MIN_PHASES, 4 * k_max))))
     exposures = np.arange(0.0, m + 1e-9, SCAN_EXPOSURE_STEP_SLOTS)
     w = np.outer(np.maximum(exposures, MIN_BOX), k) * (2j * math.pi / m)
