@@ -144,3 +144,34 @@ def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     assert lazy.protected and lazy.policy == "no-distribution"
     assert not any("colour planes" in s for s in lazy.skipped)
     assert (lazy.protected, lazy.evidence["reason"]) == (full.protected, full.evidence["reason"])
+
+
+# An RGB barcode lighting a disc over the left half of the frame (54 % of it; scikit-image
+# coins photo, 1/2260 s exposure). The quiet-block weights favour the unlit blocks; only the
+# refit on matched-filter block weights finds it (calibration positive 000024).
+_RGB_HALF_LIT = {
+    "ambient_ratio": 0.13924121342621495, "attack": False, "attacked_tone": None,
+    "channels": ["R", "G", "B"], "chroma_subsampling": "4:2:0",
+    "coverage": {"centre_rc": [0.7559693605394217, 0.05786067288109731],
+                 "fraction": 0.53875125739418, "softness": 0.19975492267390055},
+    "downscale": 1.0, "exposure_s": 0.0004420112221108011,
+    "frame_start_s": 0.3020975849145954, "jpeg_quality": 84, "kind": "barcode", "label": 1,
+    "light": {"kind": "led", "preset": "table2-rgb", "switching_hz": 291.33},
+    "noise": True, "noise_seed": 7001884189144256973, "preset": "table2-rgb",
+    "rotation_deg": 0, "rotation_mode": "none", "row_rate_hz": 58622.64187805928,
+    "scene_kind": "photo", "scene_seed": 5427186527507428200,
+    "sensor_cols": 1920, "sensor_rows": 1080, "switching_hz": 291.33,
+    "tones_hz": {"B": [1600.0, 1800.0, 2000.0], "G": [1000.0, 1200.0, 1400.0],
+                 "R": [400.0, 600.0, 800.0]},
+}
+
+
+def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
+    import lishield_guard.modelfit as modelfit
+    from synth.dataset import render_item
+
+    data, desc = render_item(_RGB_HALF_LIT)
+    assert desc["scene"] == {"scene": "skimage:coins"}
+    assert detect(data, default_config()).protected
+    monkeypatch.setattr(modelfit, "MATCHED_REFIT", False)
+    assert not detect(data, default_config()).protected
