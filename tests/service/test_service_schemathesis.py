@@ -35,7 +35,16 @@ def _offline_schema() -> dict:
     return create_app(make_settings(warmup=False)).openapi()
 
 
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance,
+def app_status_code_conformance(ctx, response, case):
+    """`status_code_conformance` for answers of the app. A negative case can carry a header
+    that is not valid HTTP (a ';' in its name); uvicorn's parser then answers a bare 400
+    before any route runs, which no OpenAPI operation can document."""
+    if response.status_code == 400 and b"Invalid HTTP request received" in response.content:
+        return None
+    return status_code_conformance(ctx, response, case)
+
+
+CHECKS = [not_a_server_error, app_status_code_conformance, content_type_conformance,
           response_schema_conformance]
 
 
