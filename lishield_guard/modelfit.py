@@ -352,8 +352,9 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     rho, th, hp, y = best
     if not rho > 0:
         return None
+    blocks_hp = hp(blocks_lin)
     if MATCHED_REFIT:
-        rho, th, y = _matched_refit(blocks_lin, hp, model, rho, th, y)
+        rho, th, y = _matched_refit(blocks_lin, blocks_hp, hp, model, rho, th, y)
     p, c1, phi, e = th
     tr = hp(model.rows(th))
     rho = float(min(rho, 1.0))
@@ -364,11 +365,12 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
         leak = chroma_leak(np.array(amps), channel)
     return ModelFit(spec.name, channel, rho, alt,
                     float(p), float(c1), float(phi % m), float(e),
-                    block_coherence_t(hp(blocks_lin), tr, weights), n / float(p), leak)
+                    block_coherence_t(blocks_hp, tr, weights), n / float(p), leak)
 
 
-def _matched_refit(blocks_lin: np.ndarray, hp, model: _Objective, rho: float, th: np.ndarray,
-                   y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+def _matched_refit(blocks_lin: np.ndarray, blocks_hp: np.ndarray, hp, model: _Objective,
+                   rho: float, th: np.ndarray, y: np.ndarray
+                   ) -> tuple[float, np.ndarray, np.ndarray]:
     """Re-combine the blocks with matched-filter weights for the fitted template and refit.
 
     A partly lit frame carries the LED in some column blocks only; `quiet_weights` favours the
@@ -383,7 +385,7 @@ def _matched_refit(blocks_lin: np.ndarray, hp, model: _Objective, rho: float, th
     tt = float(tr @ tr)
     if not tt > 0:
         return rho, th, y
-    yb = hp(blocks_lin)
+    yb = blocks_hp
     amp = yb @ tr / tt
     resid = np.mean((yb - amp[:, None] * tr[None, :]) ** 2, axis=1)
     r_max = float(resid.max())
