@@ -169,11 +169,12 @@ class DefaultGrid:
     sweep_min_rho: tuple[float, ...] = (0.7, 0.8)
     sweep_min_margin: tuple[float, ...] = (0.3,)
     sweep_min_coherence: tuple[float, ...] = (3.0,)
-    fit_min_rho: tuple[float, ...] = (0.9, 0.95)
-    fit_min_gain: tuple[float, ...] = (2.0, 3.0, 5.0, 8.0, math.inf)
+    fit_min_rho: tuple[float, ...] = (0.88, 0.9, 0.95)
+    # gain steps of 0.5 where clean fits end (their largest gain was 6.3 of 3000 images)
+    fit_min_gain: tuple[float, ...] = (3.0, 5.0, 6.0, 6.5, 7.0, 8.0, math.inf)
     # (fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb); leak 0 turns the path off
     fit_rgb: tuple[tuple[float, float, float], ...] = (
-        *itertools.product((0.8, 0.85, 0.9), (0.5, 1.0, 2.0, 3.0), (0.15, 0.3)),
+        *itertools.product((0.8, 0.85, 0.9), (1.0, 2.0, 2.5, 3.0), (0.2, 0.3)),
         (0.9, 4.0, 0.0))
 
     def sweep_combos(self) -> list[tuple[float, ...]]:
