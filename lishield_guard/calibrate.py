@@ -61,7 +61,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
-from lishield_guard.config import AppConfig, DetectorConfig
+from lishield_guard.config import FIT_RHO_FLOOR, AppConfig, DetectorConfig
 from lishield_guard.decode import decode
 from lishield_guard.detect import collect_evidence, fold_fits, spec_planes, sweep_fits
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
@@ -169,12 +169,11 @@ class DefaultGrid:
     sweep_min_rho: tuple[float, ...] = (0.7, 0.8)
     sweep_min_margin: tuple[float, ...] = (0.3,)
     sweep_min_coherence: tuple[float, ...] = (3.0,)
-    fit_min_rho: tuple[float, ...] = (0.88, 0.9, 0.95)
-    # gain steps of 0.5 where clean fits end (their largest gain was 6.3 of 3000 images)
-    fit_min_gain: tuple[float, ...] = (3.0, 5.0, 6.0, 6.5, 7.0, 8.0, math.inf)
+    fit_min_rho: tuple[float, ...] = (0.9, 0.95)
+    fit_min_gain: tuple[float, ...] = (2.0, 3.0, 5.0, 8.0, math.inf)
     # (fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb); leak 0 turns the path off
     fit_rgb: tuple[tuple[float, float, float], ...] = (
-        *itertools.product((0.8, 0.85, 0.9), (1.0, 2.0, 2.5, 3.0), (0.2, 0.3)),
+        *itertools.product((0.8, 0.85, 0.9), (0.5, 1.0, 2.0, 3.0), (0.15, 0.3)),
         (0.9, 4.0, 0.0))
 
     def sweep_combos(self) -> list[tuple[float, ...]]:
@@ -351,7 +350,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
            "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
                              dtype=float).reshape(-1, 3),
-           "sweeps": np.array([sweep_row(f) for f in sweeps],
+           "sweeps": np.array([sweep_row(f, _candidate_index(f, config)) for f in sweeps],
                               dtype=float).reshape(-1, len(SWEEP_COLUMNS))}
     if paper_grid is not None:
         t0 = time.perf_counter()
@@ -370,15 +369,40 @@ def _any_fit_passes(fits: list[np.ndarray], passes) -> np.ndarray:
 
 
 SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "fit_t",
-                 "fit_leak")
+                 "fit_leak", "candidate")
 
 
-def sweep_row(info: dict) -> list[float]:
-    """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made)."""
+def _candidate_index(info: dict, config: AppConfig) -> int:
+    """Column of `candidate_table` (axis, spec) that a `sweep_fits` entry belongs to."""
+    names = [s.name for s in _specs(config)]
+    return AXES.index(info["axis"]) * len(names) + names.index(info["spec"])
+
+
+def sweep_row(info: dict, candidate: int = -1) -> list[float]:
+    """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made;
+    ``candidate`` is its `candidate_table` column, -1 when unknown)."""
     fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0}
     leak = fit.get("chroma_leak")
     return [info["rho"], info["rho_lookalike"], info["coherence_t"], fit["rho"], fit["gain"],
-            fit["coherence_t"], math.inf if leak is None else leak]
+            fit["coherence_t"], math.inf if leak is None else leak, float(candidate)]
+
+
+def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorConfig
+                   ) -> np.ndarray:
+    """Per image and `candidate_table` column: may its tone tracks decide? True everywhere
+    when the check is off; else whether an exact fit of that (axis, spec) confirms them (the
+    array form of `detect.tone_fit_confirms`)."""
+    out = np.zeros((len(sweeps), n_candidates), dtype=bool)
+    if not (det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit):
+        out[:] = True
+        return out
+    for i, f in enumerate(sweeps):
+        if not len(f):
+            continue
+        ok = ((f[:, 3] >= FIT_RHO_FLOOR) & (f[:, 5] >= det.sweep_min_coherence)
+              & (f[:, 4] >= det.tone_min_fit_gain) & (f[:, 7] >= 0))
+        out[i, f[ok, 7].astype(int)] = True
+    return out
 
 
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
@@ -393,7 +417,7 @@ def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray
     """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass ``det``'s sweep
     thresholds, or its exact-model fit the fit thresholds (the array form of
     `detect.sweep_passes`)?"""
-    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak: (
+    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak, _cand: (
         ((rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
          & (t >= det.sweep_min_coherence))
         | (det.model_fit & (f_t >= det.sweep_min_coherence)
@@ -453,6 +477,8 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
                           for combo in grid.sweep_combos()]
         fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants
                          for sp, so in sweep_variants]
+    confirmed = (tone_confirmed(sweeps, tables.shape[2], det)
+                 if sweeps is not None and det is not None else True)
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):
         t = tables[:, ci]
         n, pur, sw, ch, rgb = (t[..., N_MATCHED], t[..., PURITY], t[..., SWITCHES],
@@ -460,7 +486,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         for mp, mt, mt_rgb in grid.gate_combos():
             need = np.where(rgb, mt_rgb, mt)
             enough = (n >= need) & valid[:, ci]
-            ok = enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2))
+            ok = enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2)) & confirmed
             for fold_params, fold_ok in fold_variants:
                 settings.append(Setting("default", (
                     ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),

@@ -114,6 +114,14 @@ class DetectorConfig:
     sweep_min_coherence : float
         Period sweep: t statistic of the template's amplitude across column blocks (the LED
         adds the same log contrast to every block; scene structure does not).
+    tone_min_fit_gain : float
+        Tone tracks alone do not decide: a spec whose tones match on an axis is protected by
+        them only when one of that spec's exact-model fits on the same axis (rho >= 0.8,
+        coherence t >= ``sweep_min_coherence``) explains the rows at least this much better
+        than the best steady square wave (the fit's gain). One steady tone whose frequency
+        estimate jitters between windows, or a PWM light whose fundamental and harmonic
+        dominate different parts of the frame, can look like two alternating tones; the
+        look-alike fits those rows as well as the barcode. -inf turns the check off.
     fast_decode : bool
         Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
         False decodes full colour with Pillow first (the reference the fast path is measured
@@ -160,6 +168,7 @@ class DetectorConfig:
     fit_min_rho_rgb: float = 0.9
     fit_min_gain_rgb: float = 4.0
     fit_max_leak_rgb: float = 0.0
+    tone_min_fit_gain: float = -math.inf
     fast_decode: bool = True
     max_decode_rows: int = 1536
 
@@ -202,6 +211,9 @@ class DetectorConfig:
             if math.isnan(getattr(self, name)):
                 raise ConfigError(f"need a number (or inf: no exact-model verdicts) for {name}, "
                                   f"got nan")
+        if math.isnan(self.tone_min_fit_gain) or self.tone_min_fit_gain == math.inf:
+            raise ConfigError(f"need tone_min_fit_gain < inf (-inf: off), got "
+                              f"{self.tone_min_fit_gain!r}")
         if not self.fit_max_leak_rgb >= 0:
             raise ConfigError(f"need fit_max_leak_rgb >= 0 (0: off), got "
                               f"{self.fit_max_leak_rgb!r}")

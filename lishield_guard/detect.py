@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -9,7 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
-from lishield_guard.config import AppConfig, DetectorConfig, default_config
+from lishield_guard.config import FIT_RHO_FLOOR, AppConfig, DetectorConfig, default_config
 from lishield_guard.decode import Decoded, decode
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
 from lishield_guard.modelfit import refine
@@ -204,8 +205,9 @@ def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
 
 def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                  ) -> list[tuple[str, SpecMatch]]:
-    """Match every spec whose planes are available on one axis: tone tracks, then folding,
-    then the period sweep (computed once per axis for all specs, when first needed)."""
+    """Match every spec whose planes are available on one axis: tone tracks (confirmed by an
+    exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
+    sweep (computed once per axis for all specs, when first needed)."""
     out = []
     periods: list[float] | None = None
     sweeps: dict[str, list[dict]] | None = None
@@ -214,6 +216,15 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
         if chans is None:
             continue
         m = match_spec(spec, chans, det)
+        if m.protected and _tone_check_on(det):
+            if sweeps is None:
+                if periods is None:
+                    periods = _periods(planes["L"], specs, det)
+                sweeps = _axis_sweeps(planes, specs, det, periods)
+            if not tone_fit_confirms(sweeps[spec.name], det):
+                m = replace(m, protected=False, reason=(
+                    f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
+                    f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
         if not m.protected:
             if periods is None:
                 periods = _periods(planes["L"], specs, det)
@@ -260,6 +271,20 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 m = replace(m, sweep=sw)
         out.append((pid, m))
     return out
+
+
+def _tone_check_on(det: DetectorConfig) -> bool:
+    return det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit
+
+
+def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:
+    """Whether one spec's period-sweep entries on one axis (`_axis_sweeps`) confirm its tone
+    tracks: an exact-model fit with rho >= `config.FIT_RHO_FLOOR`, coherence t >=
+    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
+    better than the best steady square wave)."""
+    return any(f.get("fit") is not None and f["fit"]["rho"] >= FIT_RHO_FLOOR
+               and f["fit"]["coherence_t"] >= det.sweep_min_coherence
+               and f["fit"]["gain"] >= det.tone_min_fit_gain for f in fits)
 
 
 def sweep_passes(info: dict, det: DetectorConfig) -> bool:

@@ -12,8 +12,11 @@ from lishield_guard import PRESETS, DetectorConfig, Verdict, default_config, det
 PAPER = DetectorConfig(profile="paper")
 
 
+# Switching rates within the flicker rule (pattern rate f_B / M >= 80 Hz): tone tracks are
+# confirmed by the exact fit, which only models compliant LEDs (a 200 Hz seq1 light repeats
+# at 67 Hz and flickers visibly).
 @pytest.mark.parametrize("name, switching_hz", [
-    ("table1-seq1", 200.0), ("table1-seq2", 200.0), ("table1-seq2", 300.0),
+    ("table1-seq1", 260.0), ("table1-seq2", 200.0), ("table1-seq2", 300.0),
 ])
 def test_default_profile_finds_mono_barcodes(make_led_image, name, switching_hz):
     v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz))
@@ -175,3 +178,38 @@ def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
     assert detect(data, default_config()).protected
     monkeypatch.setattr(modelfit, "MATCHED_REFIT", False)
     assert not detect(data, default_config()).protected
+
+
+# A PWM light (4.08 kHz, duty 0.66, depth 0.34) on the scikit-image moon photo, 1/770 s
+# exposure, 102 kHz rows (evaluation negative 000402 of seed 2026112305). Its one steady tone
+# is estimated at 0.038 and at 0.042 cycles/row in different windows of the dark frame, which
+# the tone tracks read as Table 1 sequence 3's 1800 and 2000 Hz alternating; no exact fit of
+# the barcode explains the rows better than a steady square wave, so the tones do not decide.
+_PWM_ON_MOON = {
+    "ambient_ratio": 0.0, "attack": False, "attacked_tone": None, "channels": ["W"],
+    "chroma_subsampling": "4:2:0",
+    "coverage": {"centre_rc": None, "fraction": 1.0, "softness": None}, "downscale": 1.0,
+    "exposure_s": 0.001297261398719673, "frame_start_s": 0.34924928373238306,
+    "jpeg_quality": 69, "kind": "pwm", "label": 0,
+    "light": {"depth": 0.3391872027394969, "duty": 0.6578784350901159,
+              "freq_hz": 4080.945941160769, "kind": "pwm", "phase_s": 8.663759385440107e-05},
+    "noise": True, "noise_seed": 2249857711105985336, "preset": None, "rotation_deg": 0,
+    "rotation_mode": "none", "row_rate_hz": 102031.08667052169, "scene_kind": "photo",
+    "scene_seed": 4442101380807594188, "sensor_cols": 1920, "sensor_rows": 1080,
+    "switching_hz": None, "tones_hz": None,
+}
+
+
+def test_jittering_pwm_tone_is_not_a_barcode_without_a_fit_that_beats_the_lookalike():
+    from synth.dataset import render_item
+
+    data, desc = render_item(_PWM_ON_MOON)
+    assert desc["scene"] == {"scene": "skimage:moon"}
+    cfg = default_config()
+    assert cfg.detector.tone_min_fit_gain > 0
+    v = detect(data, cfg)
+    assert not v.protected
+    assert "not confirmed" in v.evidence["reason"]
+    off = cfg.detector.replace(tone_min_fit_gain=-np.inf)
+    unchecked = detect(data, off)
+    assert unchecked.protected and "alternate down the rows" in unchecked.evidence["reason"]
