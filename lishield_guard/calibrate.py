@@ -63,7 +63,13 @@ import numpy as np
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import FIT_RHO_FLOOR, AppConfig, DetectorConfig
 from lishield_guard.decode import decode
-from lishield_guard.detect import collect_evidence, fold_fits, spec_planes, sweep_fits
+from lishield_guard.detect import (
+    collect_evidence,
+    fold_fits,
+    spec_planes,
+    sweep_fits,
+    tone_check_on,
+)
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
 
 __all__ = [
@@ -393,7 +399,7 @@ def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorCon
     when the check is off; else whether an exact fit of that (axis, spec) confirms them (the
     array form of `detect.tone_fit_confirms`)."""
     out = np.zeros((len(sweeps), n_candidates), dtype=bool)
-    if not (det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit):
+    if not tone_check_on(det):
         out[:] = True
         return out
     for i, f in enumerate(sweeps):

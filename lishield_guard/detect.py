@@ -6,6 +6,7 @@ import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import cache
 
 import numpy as np
 
@@ -209,26 +210,27 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
     sweep (computed once per axis for all specs, when first needed)."""
     out = []
-    periods: list[float] | None = None
-    sweeps: dict[str, list[dict]] | None = None
+
+    @cache
+    def periods() -> list[float]:
+        return _periods(planes["L"], specs, det)
+
+    @cache
+    def sweeps() -> dict[str, list[dict]]:
+        return _axis_sweeps(planes, specs, det, periods())
+
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
         if chans is None:
             continue
         m = match_spec(spec, chans, det)
-        if m.protected and _tone_check_on(det):
-            if sweeps is None:
-                if periods is None:
-                    periods = _periods(planes["L"], specs, det)
-                sweeps = _axis_sweeps(planes, specs, det, periods)
-            if not tone_fit_confirms(sweeps[spec.name], det):
-                m = replace(m, protected=False, reason=(
-                    f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
-                    f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
+        if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps()[spec.name],
+                                                                          det):
+            m = replace(m, protected=False, reason=(
+                f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
+                f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
         if not m.protected:
-            if periods is None:
-                periods = _periods(planes["L"], specs, det)
-            info = _fold_info(spec, chans, periods, det)
+            info = _fold_info(spec, chans, periods(), det)
             if info is not None and fold_passes(info, det):
                 reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
                           f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
@@ -237,11 +239,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
             elif info is not None:
                 m = replace(m, fold=info)
         if not m.protected and det.period_sweep:
-            if sweeps is None:
-                if periods is None:
-                    periods = _periods(planes["L"], specs, det)
-                sweeps = _axis_sweeps(planes, specs, det, periods)
-            fits = sweeps[spec.name]
+            fits = sweeps()[spec.name]
             passing = [f for f in fits if sweep_passes(f, det)]
             sw = max(passing or fits, key=lambda f: (_grid_passes(f, det),
                                                      f["rho"] - f["rho_lookalike"]),
@@ -273,7 +271,9 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     return out
 
 
-def _tone_check_on(det: DetectorConfig) -> bool:
+def tone_check_on(det: DetectorConfig) -> bool:
+    """Whether tone tracks need an exact fit's confirmation (`tone_fit_confirms`): a finite
+    ``tone_min_fit_gain`` with the period sweep and the exact fit enabled."""
     return det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit
 
 
