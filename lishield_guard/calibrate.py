@@ -61,7 +61,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
-from lishield_guard.config import FIT_RHO_FLOOR, AppConfig, DetectorConfig
+from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, AppConfig, DetectorConfig
 from lishield_guard.decode import decode
 from lishield_guard.detect import (
     collect_evidence,
@@ -158,7 +158,8 @@ def images_needed(target_far: float, confidence: float = CONFIDENCE) -> int:
 
 
 SWEEP_KEYS = ("sweep_min_rho", "sweep_min_margin", "sweep_min_coherence", "fit_min_rho",
-              "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb")
+              "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb",
+              "fit_min_rho_periodic", "fit_min_gain_periodic")
 
 
 @dataclass(frozen=True)
@@ -179,16 +180,20 @@ class DefaultGrid:
     fit_min_gain: tuple[float, ...] = (2.0, 3.0, 5.0, 8.0, math.inf)
     # (fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb); leak 0 turns the path off
     fit_rgb: tuple[tuple[float, float, float], ...] = (
-        *itertools.product((0.8, 0.85, 0.9), (0.5, 1.0, 2.0, 3.0), (0.15, 0.3)),
+        *itertools.product((0.8, 0.85), (1.0, 2.0, 3.0), (0.3,)), (0.8, 3.0, 0.15),
         (0.9, 4.0, 0.0))
+    # (fit_min_rho_periodic, fit_min_gain_periodic); gain inf turns the path off
+    fit_periodic: tuple[tuple[float, float], ...] = (
+        *itertools.product((0.85, 0.9), (1.0, 2.0, 3.0, 5.0)), (1.0, math.inf))
 
     def sweep_combos(self) -> list[tuple[float, ...]]:
         """Values of `SWEEP_KEYS` for the period sweep and its exact-model refinement (gain
-        inf: no refinement; leak 0: no colour-verified path)."""
-        return [(*a, *b) for a, b in itertools.product(
+        inf: no refinement; leak 0: no colour-verified path; periodic gain inf: no
+        periodic path)."""
+        return [(*a, *b, *c) for a, b, c in itertools.product(
             itertools.product(self.sweep_min_rho, self.sweep_min_margin,
                               self.sweep_min_coherence, self.fit_min_rho, self.fit_min_gain),
-            self.fit_rgb)]
+            self.fit_rgb, self.fit_periodic)]
 
     def match_combos(self) -> list[tuple[float, float, float, float]]:
         """(peak_false_prob, tone_rel_tol, min_occupancy, max_occupancy): each needs matching."""
@@ -375,7 +380,7 @@ def _any_fit_passes(fits: list[np.ndarray], passes) -> np.ndarray:
 
 
 SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "fit_t",
-                 "fit_leak", "candidate")
+                 "fit_leak", "candidate", "fit_periods")
 
 
 def _candidate_index(info: dict, config: AppConfig) -> int:
@@ -387,10 +392,11 @@ def _candidate_index(info: dict, config: AppConfig) -> int:
 def sweep_row(info: dict, candidate: int = -1) -> list[float]:
     """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made;
     ``candidate`` is its `candidate_table` column, -1 when unknown)."""
-    fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0}
+    fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0, "n_periods": 0.0}
     leak = fit.get("chroma_leak")
     return [info["rho"], info["rho_lookalike"], info["coherence_t"], fit["rho"], fit["gain"],
-            fit["coherence_t"], math.inf if leak is None else leak, float(candidate)]
+            fit["coherence_t"], math.inf if leak is None else leak, float(candidate),
+            fit["n_periods"]]
 
 
 def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorConfig
@@ -423,11 +429,13 @@ def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray
     """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass ``det``'s sweep
     thresholds, or its exact-model fit the fit thresholds (the array form of
     `detect.sweep_passes`)?"""
-    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak, _cand: (
+    return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_np: (
         ((rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
          & (t >= det.sweep_min_coherence))
         | (det.model_fit & (f_t >= det.sweep_min_coherence)
            & (((f_rho >= det.fit_min_rho) & (f_gain >= det.fit_min_gain))
+              | ((f_np >= PERIODIC_MIN_PERIODS) & (f_rho >= det.fit_min_rho_periodic)
+                 & (f_gain >= det.fit_min_gain_periodic))
               | ((leak <= det.fit_max_leak_rgb) & (f_rho >= det.fit_min_rho_rgb)
                  & (f_gain >= det.fit_min_gain_rgb))))))
 

@@ -31,6 +31,7 @@ __all__ = [
 
 DEFAULT_CONFIG_RESOURCE = "default.toml"
 FIT_RHO_FLOOR = 0.8  # modelfit: below this fit rho the look-alike is not fitted (gain 0)
+PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit_*_periodic path
 
 
 @dataclass(frozen=True)
@@ -111,6 +112,14 @@ class DetectorConfig:
         point at its own channel (`modelfit.chroma_leak` <= ``fit_max_leak_rgb``; a grey
         scene's structure shows in all three planes alike, leak sqrt 2). 0 leak turns this
         path off.
+    fit_min_rho_periodic, fit_min_gain_periodic : float
+        A second way for an exact fit to pass when the frame holds at least
+        `PERIODIC_MIN_PERIODS` (2) pattern periods: the template then repeats within the rows,
+        so only rows that repeat (a periodic light or texture, which the stationary
+        look-alike models) can fit it well, and a lower gain suffices. With fewer periods a
+        one-period template bends to fit unrepeated scene rows (on natural scenes under
+        steady light, such fits reach gains of 4-6 at rho >= 0.94). Gain inf turns this path
+        off.
     sweep_min_coherence : float
         Period sweep: t statistic of the template's amplitude across column blocks (the LED
         adds the same log contrast to every block; scene structure does not).
@@ -168,6 +177,8 @@ class DetectorConfig:
     fit_min_rho_rgb: float = 0.9
     fit_min_gain_rgb: float = 4.0
     fit_max_leak_rgb: float = 0.0
+    fit_min_rho_periodic: float = 1.0
+    fit_min_gain_periodic: float = math.inf
     tone_min_fit_gain: float = -math.inf
     fast_decode: bool = True
     max_decode_rows: int = 1536
@@ -203,11 +214,11 @@ class DetectorConfig:
         if not (math.isfinite(self.fit_min_rho) and FIT_RHO_FLOOR <= self.fit_min_rho <= 1):
             raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho <= 1 (look-alikes are only "
                               f"fitted above {FIT_RHO_FLOOR}), got {self.fit_min_rho!r}")
-        if not (math.isfinite(self.fit_min_rho_rgb)
-                and FIT_RHO_FLOOR <= self.fit_min_rho_rgb <= 1):
-            raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho_rgb <= 1, got "
-                              f"{self.fit_min_rho_rgb!r}")
-        for name in ("fit_min_gain", "fit_min_gain_rgb"):
+        for name in ("fit_min_rho_rgb", "fit_min_rho_periodic"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and FIT_RHO_FLOOR <= v <= 1):
+                raise ConfigError(f"need {FIT_RHO_FLOOR} <= {name} <= 1, got {v!r}")
+        for name in ("fit_min_gain", "fit_min_gain_rgb", "fit_min_gain_periodic"):
             if math.isnan(getattr(self, name)):
                 raise ConfigError(f"need a number (or inf: no exact-model verdicts) for {name}, "
                                   f"got nan")

@@ -11,7 +11,13 @@ from functools import cache
 import numpy as np
 
 from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
-from lishield_guard.config import FIT_RHO_FLOOR, AppConfig, DetectorConfig, default_config
+from lishield_guard.config import (
+    FIT_RHO_FLOOR,
+    PERIODIC_MIN_PERIODS,
+    AppConfig,
+    DetectorConfig,
+    default_config,
+)
 from lishield_guard.decode import Decoded, decode
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
 from lishield_guard.modelfit import refine
@@ -248,7 +254,8 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 fit = sw["fit"]
                 reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
                           f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
-                          f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot) "
+                          f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
+                          f"{fit['n_periods']:.2f} periods in the frame) "
                           f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
                           f"{fit['gain']:.1f}x "
                           f"better than any steady square wave (look-alike rho="
@@ -303,13 +310,18 @@ def _grid_passes(info: dict, det: DetectorConfig) -> bool:
 
 def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
     """Whether an exact-model fit (`modelfit.ModelFit.to_dict`) is evidence enough: rho and
-    gain reach ``fit_min_rho`` and ``fit_min_gain``, or (an RGB channel whose colour was
-    measured) its chroma leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
-    ``_rgb`` thresholds; the coherence t must reach ``sweep_min_coherence`` either way."""
+    gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
+    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
+    thresholds; or (an RGB channel whose colour was measured) its chroma leak is at most
+    ``fit_max_leak_rgb`` and rho and gain reach the ``_rgb`` thresholds. The coherence t must
+    reach ``sweep_min_coherence`` in every case."""
     if not (det.model_fit and fit is not None
             and fit["coherence_t"] >= det.sweep_min_coherence):
         return False
     if fit["rho"] >= det.fit_min_rho and fit["gain"] >= det.fit_min_gain:
+        return True
+    if (fit["n_periods"] >= PERIODIC_MIN_PERIODS and fit["rho"] >= det.fit_min_rho_periodic
+            and fit["gain"] >= det.fit_min_gain_periodic):
         return True
     leak = fit.get("chroma_leak")
     return (leak is not None and leak <= det.fit_max_leak_rgb and fit["rho"] >= det.fit_min_rho_rgb

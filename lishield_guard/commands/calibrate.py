@@ -47,7 +47,7 @@ def _hash(*parts) -> str:
 
 # --- worker side (module-level for pickling)
 _W: dict = {}
-EVIDENCE_PREFIX = "ev7-"  # bump when image_record's layout changes (code edits key the cache)
+EVIDENCE_PREFIX = "ev8-"  # bump when image_record's layout changes (code edits key the cache)
 
 
 def _code_key() -> str:

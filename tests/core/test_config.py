@@ -83,6 +83,8 @@ def test_policy_ratio_values_are_union():
         ("[detector]\norientations = \"diagonal\"\n", "orientations"),
         ("[detector]\nfit_min_rho_rgb = 0.5\n", "fit_min_rho_rgb"),
         ("[detector]\nfit_min_gain_rgb = nan\n", "fit_min_gain_rgb"),
+        ("[detector]\nfit_min_rho_periodic = 0.5\n", "fit_min_rho_periodic"),
+        ("[detector]\nfit_min_gain_periodic = nan\n", "fit_min_gain_periodic"),
         ("[detector]\nfit_max_leak_rgb = -0.1\n", "fit_max_leak_rgb"),
         ("[limits]\nmax_bytes = 0\n", "max_bytes"),
         ("[detector]\nratio_tol = \"a\"\n", "real number"),

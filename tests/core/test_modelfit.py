@@ -13,6 +13,8 @@ from core_led_model import row_waveform
 from lishield_guard import PRESETS
 from lishield_guard.fold import sweep_match
 from lishield_guard.modelfit import (
+    HIGHPASS_CYCLES,
+    _highpass,
     linearise,
     lookalike_rho,
     pattern_knots,
@@ -127,6 +129,21 @@ def test_lookalike_fits_a_square_wave():
     y = square_rows(rows / 37.3 + 0.2, 0.4, 0.1)
     y = y - y.mean()
     assert lookalike_rho(y, lambda t: t - np.mean(t, axis=-1, keepdims=True)) > 0.98
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.3, 0.6])
+def test_lookalike_finds_a_high_duty_square_wave_whose_harmonics_dominate(phase):
+    """A PWM light of duty 0.84 behind the fit's high-pass, over a drifting scene: a square
+    wave at one of its harmonics' frequencies can score best on the start grid. Refining that
+    start alone stopped at rho 0.65-0.72 for phases 0 and 0.6 (a calibration negative, a
+    213 Hz PWM, then passed as a barcode 6x better than any square wave); refining the best
+    start of each of the best candidate frequencies finds the light itself."""
+    n, period = 720, 150.0
+    rows = np.arange(n, dtype=float)
+    hp = _highpass(n, period / (2 * math.pi * HIGHPASS_CYCLES))
+    scene = np.cumsum(np.random.default_rng(5).normal(0.0, 1.0, n))
+    x = 0.3 * square_rows(rows / period + phase, 0.84, 0.076) + 0.05 * scene / scene.std()
+    assert lookalike_rho(hp(x), hp) > 0.95
 
 
 def test_degenerate_inputs_are_quiet(rng):
