@@ -135,7 +135,7 @@ def test_lookalike_fits_a_square_wave():
 def test_lookalike_finds_a_high_duty_square_wave_whose_harmonics_dominate(phase):
     """A PWM light of duty 0.84 behind the fit's high-pass, over a drifting scene: a square
     wave at one of its harmonics' frequencies can score best on the start grid. Refining that
-    start alone stopped at rho 0.65-0.72 for phases 0 and 0.6 (a calibration negative, a
+    start alone stopped at rho 0.65-0.72 for all three phases (a calibration negative, a
     213 Hz PWM, then passed as a barcode 6x better than any square wave); refining the best
     start of each of the best candidate frequencies finds the light itself."""
     n, period = 720, 150.0
