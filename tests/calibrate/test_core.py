@@ -29,7 +29,8 @@ def test_candidate_table_agrees_with_decide(records):
                            min_tones=(2,), sweep_min_rho=(0.6, 0.9), sweep_min_margin=(0.0,),
                            sweep_min_coherence=(3.0,), fit_min_rho=(0.9,),
                            fit_min_gain=(1.0, math.inf),
-                           fit_rgb=((0.8, 0.5, 0.3),))
+                           fit_rgb=((0.8, 0.5, 0.3),),
+                           fit_periodic=((0.85, 1.0), (1.0, math.inf)))
     tables = np.stack([cal.candidate_table(r["evidence"], cfg, grid)[0] for r in recs])
     settings, prot, _, _ = cal.default_scores(tables, grid, [r["folds"] for r in recs],
                                               cfg.detector, fold_min_rho=(0.9,),
