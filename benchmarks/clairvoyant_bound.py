@@ -42,6 +42,7 @@ from lishield_guard.modelfit import (
     render_rows,
 )
 from lishield_guard.spec import get_preset
+from lishield_guard.stats import clopper_pearson
 
 LUMA = {"W": 1.0, "R": 0.299, "G": 0.587, "B": 0.114}
 FARS = (0.001, 0.005, 0.01, 0.05)
@@ -119,17 +120,6 @@ def _one(args: tuple) -> dict:
             "twin": _template_corr(twin_jpeg, item, cfg)}
 
 
-def _wilson(k: int, n: int) -> tuple[float, float]:
-    if n == 0:
-        return float("nan"), float("nan")
-    z = 1.959964
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, c - h), min(1.0, c + h)
-
-
 def main() -> int:
     """Print the clairvoyant ROC points (and the shipped detector's TPR on the same items)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -170,7 +160,7 @@ def main() -> int:
             line = [f"  FAR {far:.3f} (rho > {thr:.3f})"]
             for name, g in groups.items():
                 k = sum(r["barcode"][var] > thr for r in g)
-                lo, hi = _wilson(k, len(g))
+                lo, hi = clopper_pearson(k, len(g))
                 line.append(f"{name} {k}/{len(g)} = {k / max(len(g), 1):.3f} [{lo:.3f}, {hi:.3f}]")
             print("  ".join(line))
     if shipped:
