@@ -61,14 +61,18 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
-from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, AppConfig, DetectorConfig
+from lishield_guard.config import AppConfig, DetectorConfig
 from lishield_guard.decode import decode
 from lishield_guard.detect import (
     collect_evidence,
+    fit_rule,
     fold_fits,
+    fold_rule,
+    grid_rule,
     spec_planes,
     sweep_fits,
     tone_check_on,
+    tone_rule,
 )
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
 
@@ -411,33 +415,23 @@ def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorCon
     for i, f in enumerate(sweeps):
         if not len(f):
             continue
-        ok = ((f[:, 3] >= FIT_RHO_FLOOR) & (f[:, 5] >= det.sweep_min_coherence)
-              & (f[:, 4] >= det.tone_min_fit_gain) & (f[:, 7] >= 0))
+        ok = tone_rule(f[:, 3], f[:, 4], f[:, 5], det) & (f[:, 7] >= 0)
         out[i, f[ok, 7].astype(int)] = True
     return out
 
 
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
-    """Per image: does any fold fit (rows of rho, rho_lookalike, fold_snr) pass ``det``'s
-    fold thresholds? The fold stage does not depend on the swept tone parameters."""
-    return _any_fit_passes(folds, lambda rho, alt, snr: (
-        (rho >= det.fold_min_rho) & (snr >= det.fold_min_snr)
-        & (rho - alt >= det.fold_min_margin)))
+    """Per image: does any fold fit (rows of rho, rho_lookalike, fold_snr) pass
+    `detect.fold_rule`? The fold stage does not depend on the swept tone parameters."""
+    return _any_fit_passes(folds, lambda rho, alt, snr: fold_rule(rho, alt, snr, det))
 
 
 def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
-    """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass ``det``'s sweep
-    thresholds, or its exact-model fit the fit thresholds (the array form of
-    `detect.sweep_passes`)?"""
+    """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass `detect.grid_rule`,
+    or its exact-model fit `detect.fit_rule` (an unmeasured chroma leak is cached as inf, as
+    `detect.fit_passes` passes it)? The table form of `detect.sweep_passes`."""
     return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_np: (
-        ((rho >= det.sweep_min_rho) & (rho - alt >= det.sweep_min_margin)
-         & (t >= det.sweep_min_coherence))
-        | (det.model_fit & (f_t >= det.sweep_min_coherence)
-           & (((f_rho >= det.fit_min_rho) & (f_gain >= det.fit_min_gain))
-              | ((f_np >= PERIODIC_MIN_PERIODS) & (f_rho >= det.fit_min_rho_periodic)
-                 & (f_gain >= det.fit_min_gain_periodic))
-              | ((leak <= det.fit_max_leak_rgb) & (f_rho >= det.fit_min_rho_rgb)
-                 & (f_gain >= det.fit_min_gain_rgb))))))
+        grid_rule(rho, alt, t, det) | fit_rule(f_rho, f_gain, f_t, f_np, leak, det)))
 
 
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting

@@ -27,8 +27,9 @@ from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
-__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fold_fits",
-           "fit_passes", "fold_passes", "spec_planes", "sweep_fits", "sweep_passes"]
+__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fit_passes",
+           "fit_rule", "fold_fits", "fold_passes", "fold_rule", "grid_rule", "spec_planes",
+           "sweep_fits", "sweep_passes", "tone_rule"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 FIT_STARTS = 3  # best grid periods per spec channel refined with the exact capture model
@@ -286,46 +287,73 @@ def tone_check_on(det: DetectorConfig) -> bool:
 
 def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:
     """Whether one spec's period-sweep entries on one axis (`_axis_sweeps`) confirm its tone
-    tracks: an exact-model fit with rho >= `config.FIT_RHO_FLOOR`, coherence t >=
-    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
-    better than the best steady square wave)."""
-    return any(f.get("fit") is not None and f["fit"]["rho"] >= FIT_RHO_FLOOR
-               and f["fit"]["coherence_t"] >= det.sweep_min_coherence
-               and f["fit"]["gain"] >= det.tone_min_fit_gain for f in fits)
+    tracks: one of them has an exact-model fit passing `tone_rule`."""
+    return any(f.get("fit") is not None
+               and bool(tone_rule(f["fit"]["rho"], f["fit"]["gain"], f["fit"]["coherence_t"], det))
+               for f in fits)
 
 
 def sweep_passes(info: dict, det: DetectorConfig) -> bool:
     """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
-    the grid fit passes the sweep thresholds, or its exact-model refinement passes the fit
-    thresholds."""
+    the grid fit passes `grid_rule`, or its exact-model refinement passes `fit_passes`."""
     return _grid_passes(info, det) or fit_passes(info.get("fit"), det)
 
 
 def _grid_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether the sweep's own (binned-grid) fit passes the sweep thresholds."""
-    return (info["rho"] >= det.sweep_min_rho
-            and info["rho"] - info["rho_lookalike"] >= det.sweep_min_margin
-            and info["coherence_t"] >= det.sweep_min_coherence)
+    """Whether the sweep's own (binned-grid) fit passes `grid_rule`."""
+    return bool(grid_rule(info["rho"], info["rho_lookalike"], info["coherence_t"], det))
 
 
 def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
-    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`) is evidence enough: rho and
-    gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
-    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
-    thresholds; or (an RGB channel whose colour was measured) its chroma leak is at most
-    ``fit_max_leak_rgb`` and rho and gain reach the ``_rgb`` thresholds. The coherence t must
-    reach ``sweep_min_coherence`` in every case."""
-    if not (det.model_fit and fit is not None
-            and fit["coherence_t"] >= det.sweep_min_coherence):
+    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`, or None) passes `fit_rule`."""
+    if fit is None:
         return False
-    if fit["rho"] >= det.fit_min_rho and fit["gain"] >= det.fit_min_gain:
-        return True
-    if (fit["n_periods"] >= PERIODIC_MIN_PERIODS and fit["rho"] >= det.fit_min_rho_periodic
-            and fit["gain"] >= det.fit_min_gain_periodic):
-        return True
     leak = fit.get("chroma_leak")
-    return (leak is not None and leak <= det.fit_max_leak_rgb and fit["rho"] >= det.fit_min_rho_rgb
-            and fit["gain"] >= det.fit_min_gain_rgb)
+    return bool(fit_rule(fit["rho"], fit["gain"], fit["coherence_t"], fit["n_periods"],
+                         math.inf if leak is None else leak, det))
+
+
+# The pass rules below are written once, over numbers or same-shape arrays (``&`` and ``|``
+# rather than ``and`` and ``or``): detection applies them to one fit, calibration
+# (`calibrate.sweep_protected` and friends) to whole tables of cached fits.
+
+
+def grid_rule(rho, rho_lookalike, coherence_t, det: DetectorConfig):
+    """Period-sweep grid fit: rho >= ``sweep_min_rho``, rho beats the stationary look-alike
+    by ``sweep_min_margin`` and the column blocks agree (coherence t >= ``sweep_min_coherence``).
+    """
+    return ((rho >= det.sweep_min_rho) & (rho - rho_lookalike >= det.sweep_min_margin)
+            & (coherence_t >= det.sweep_min_coherence))
+
+
+def fit_rule(rho, gain, coherence_t, n_periods, chroma_leak, det: DetectorConfig):
+    """Exact-model fit, with the exact fit enabled and coherence t >= ``sweep_min_coherence``:
+    rho and gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
+    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
+    thresholds; or (an RGB channel whose colour was measured: ``chroma_leak`` finite, inf
+    when not measured) the leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
+    ``_rgb`` thresholds."""
+    return (det.model_fit & (coherence_t >= det.sweep_min_coherence)
+            & (((rho >= det.fit_min_rho) & (gain >= det.fit_min_gain))
+               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit_min_rho_periodic)
+                  & (gain >= det.fit_min_gain_periodic))
+               | (np.isfinite(chroma_leak) & (chroma_leak <= det.fit_max_leak_rgb)
+                  & (rho >= det.fit_min_rho_rgb) & (gain >= det.fit_min_gain_rgb))))
+
+
+def tone_rule(rho, gain, coherence_t, det: DetectorConfig):
+    """Exact-model fit confirming tone tracks: rho >= `config.FIT_RHO_FLOOR`, coherence t >=
+    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
+    better than the best steady square wave)."""
+    return ((rho >= FIT_RHO_FLOOR) & (coherence_t >= det.sweep_min_coherence)
+            & (gain >= det.tone_min_fit_gain))
+
+
+def fold_rule(rho, rho_lookalike, fold_snr, det: DetectorConfig):
+    """Fold fit: rho >= ``fold_min_rho``, SNR >= ``fold_min_snr`` and rho beats the stationary
+    look-alike by ``fold_min_margin``."""
+    return ((rho >= det.fold_min_rho) & (fold_snr >= det.fold_min_snr)
+            & (rho - rho_lookalike >= det.fold_min_margin))
 
 
 def _related_periods(periods) -> tuple[float, ...]:
@@ -405,9 +433,9 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
 
 
 def fold_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a fold fit (`fold_fits` entry) is evidence enough for a verdict of protected."""
-    return (info["rho"] >= det.fold_min_rho and info["fold_snr"] >= det.fold_min_snr
-            and info["rho"] - info["rho_lookalike"] >= det.fold_min_margin)
+    """Whether a fold fit (`fold_fits` entry) passes `fold_rule` (evidence enough for a
+    verdict of protected)."""
+    return bool(fold_rule(info["rho"], info["rho_lookalike"], info["fold_snr"], det))
 
 
 def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
