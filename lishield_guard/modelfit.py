@@ -60,9 +60,10 @@ SCAN_MIN_PHASES = 256  # phases per pattern period scanned (more when the templa
 SCAN_HARMONICS_PER_CYCLE = 4  # template harmonics kept per cycle of the fastest tone per slot
 MATCHED_REFIT = True  # refit on matched-filter block weights (`_matched_refit`); calibration
 #                       positives (160: partial coverage + 60 full) +6 detected, none lost
-SQUARE_DUTIES = (0.1, 0.3, 0.5, 0.7, 0.9)
-SQUARE_EXPOSURES = (0.0, 0.3, 0.7)  # box widths in cycles of the look-alike
-SQUARE_PHASES = 8
+SQUARE_DUTIES = np.arange(1, 20) / 20.0  # look-alike start grid: duty 0.05 ... 0.95
+SQUARE_EXPOSURES = np.array([0.0, 0.15, 0.3, 0.5, 0.75, 1.5])  # box widths, look-alike cycles
+SQUARE_HARMONICS = 48  # harmonics of a candidate frequency in the start grid's Fourier series
+SQUARE_MIN_PHASES = 64  # phases per look-alike cycle scanned (more when the harmonics need it)
 SQUARE_PEAKS = 3
 SQUARE_REFINES = 4  # look-alike grid starts (best per candidate frequency) refined
 
@@ -234,15 +235,27 @@ def square_rows(u_cycles: np.ndarray, duty: float, exposure_cycles: float) -> np
     return (cum(u_cycles + e) - cum(u_cycles)) / e
 
 
-def _highpass(n_rows: int, sigma_rows: float):
-    """x minus its Gaussian trend (mirror-extended, by FFT) along the last axis."""
-    gain = highpass_gain(n_rows, sigma_rows)
+class _HighPass:
+    """x minus its Gaussian trend of sigma ``sigma_rows`` (mirror-extended, by FFT) along the
+    last axis of ``n_rows``; `gain_at` is its gain at a frequency (cycles per row)."""
 
-    def apply(x: np.ndarray) -> np.ndarray:
-        out = np.fft.irfft(mirror_rfft(x) * gain, n=2 * n_rows, axis=-1)[..., :n_rows]
+    def __init__(self, n_rows: int, sigma_rows: float):
+        self.sigma_rows = float(sigma_rows)
+        self._gain = highpass_gain(n_rows, sigma_rows)
+        self._n = n_rows
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        out = np.fft.irfft(mirror_rfft(x) * self._gain, n=2 * self._n, axis=-1)[..., :self._n]
         return out - out.mean(axis=-1, keepdims=True)
 
-    return apply
+    def gain_at(self, freqs_cpr: np.ndarray) -> np.ndarray:
+        """Gain at ``freqs_cpr`` (cycles per row), away from the ends of the rows."""
+        return highpass_gain_at(freqs_cpr, self.sigma_rows)
+
+
+def _highpass(n_rows: int, sigma_rows: float) -> _HighPass:
+    """x minus its Gaussian trend (mirror-extended, by FFT) along the last axis."""
+    return _HighPass(n_rows, sigma_rows)
 
 
 def _corr(t: np.ndarray, y: np.ndarray, yy: float) -> float:
@@ -482,11 +495,15 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
 
     Candidate fundamentals are the periodogram's strongest peaks and their half and third (a
-    square wave's fundamental is not always its strongest line after the high-pass). Each
-    candidate's best point on a grid of duty, exposure and phase is a start; the
-    `SQUARE_REFINES` best starts are refined with Nelder-Mead. (Refining only the single best
-    grid point missed, e.g., a 213 Hz PWM light of duty 0.84 whose third harmonic's start
-    scored highest: 0.735 where the square wave fits at 0.985.)
+    square wave's fundamental is not always its strongest line after the high-pass). For each
+    candidate, `_square_start` scores every duty and exposure of a grid at every phase at
+    once; the best start of each of the `SQUARE_REFINES` best candidates is refined with
+    Nelder-Mead on the exact, high-passed template, and the best refined fit is returned.
+
+    The earlier start grid had 8 phases: a high-duty light's short dark pulse fell between
+    them, so the search often started at a harmonic and stopped there (a 213 Hz PWM of duty
+    0.84 scored 0.735 where the square wave fits at 0.985); `benchmarks/lookalike_search.py`
+    measures the misses.
     """
     y = np.asarray(y_hp, dtype=np.float64)
     n = y.size
@@ -507,17 +524,8 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     if not cands:
         return 0.0
     rows = np.arange(n, dtype=np.float64)
-    shapes = [(d, e, ph) for d in SQUARE_DUTIES for e in SQUARE_EXPOSURES
-              for ph in np.arange(SQUARE_PHASES) / SQUARE_PHASES]
-    starts = []
-    for f0 in cands:
-        bank = hp(np.stack([square_rows(f0 * rows + ph, d, e) for d, e, ph in shapes]))
-        norms = np.sqrt(np.maximum((bank * bank).sum(axis=1), 1e-30))
-        rhos = bank @ y / norms / math.sqrt(yy)
-        k = int(np.argmax(rhos))
-        d0, e0, ph0 = shapes[k]
-        starts.append((float(rhos[k]), np.array([f0, d0, ph0, e0])))
-    starts.sort(key=lambda s: -s[0])
+    gain_at = getattr(hp, "gain_at", None)
+    starts = sorted((_square_start(y, yy, f0, gain_at) for f0 in cands), key=lambda s: -s[0])
 
     def loss(th):
         f, d, ph, e = th
@@ -525,8 +533,39 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
             return 1.0
         return -_corr(hp(square_rows(f * rows + ph, d, e)), y, yy)
 
-    best = starts[0][0]
+    best = 0.0
     for _, x0 in starts[:SQUARE_REFINES]:
         val, _ = _nelder_mead(loss, x0, np.array([0.01 * x0[0], 0.05, 0.05, 0.05]))
         best = max(best, -val)
     return float(min(best, 1.0))
+
+
+def _square_start(y: np.ndarray, yy: float, f0_cpr: float, gain_at) -> tuple[float, np.ndarray]:
+    """Best (approximate rho, [frequency, duty, phase, exposure]) of a square wave of
+    fundamental ``f0_cpr`` over the grid of `SQUARE_DUTIES` x `SQUARE_EXPOSURES` x every phase.
+
+    A square wave of duty d, box-smoothed over e cycles, has Fourier coefficients
+    S_k = (1 - exp(-2 pi i k d)) / (2 pi i k) times the box's (exp(2 pi i k e) - 1) /
+    (2 pi i k e); row i sits at u_i = f0 i + phi, so its correlation with the rows is
+    2 Re sum_k g_k S_k B_k conj(Y_k) exp(2 pi i k phi), Y_k = sum_i y_i exp(-2 pi i k f0 i),
+    g_k the high-pass gain (``gain_at``; 1 when None): one inverse FFT gives every phase (the
+    method of `_scan_start`; exact for whole cycles, close otherwise).
+    """
+    n = y.size
+    k_max = int(max(1, min(SQUARE_HARMONICS, math.floor(0.5 / f0_cpr))))
+    k = np.arange(1, k_max + 1, dtype=np.float64)
+    y_k = np.exp(np.outer(k, np.arange(n)) * (-2j * math.pi * f0_cpr)) @ y
+    g = gain_at(k * f0_cpr) if gain_at is not None else np.ones(k_max)
+    s_k = -np.expm1(np.outer(SQUARE_DUTIES, k) * (-2j * math.pi)) / (2j * math.pi * k)
+    w = np.outer(np.maximum(SQUARE_EXPOSURES, MIN_BOX), k) * (2j * math.pi)
+    t_k = (s_k[:, None, :] * (np.expm1(w) / w)[None, :, :] * g).reshape(-1, k_max)
+    n_phases = 1 << int(math.ceil(math.log2(max(SQUARE_MIN_PHASES, 4 * k_max))))
+    z = np.zeros((t_k.shape[0], n_phases), dtype=np.complex128)
+    z[:, 1:k_max + 1] = t_k * np.conj(y_k)
+    num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
+    norms = np.sqrt(np.maximum(2.0 * n * (np.abs(t_k) ** 2).sum(axis=1), 1e-30) * yy)
+    rho = num / norms[:, None]
+    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    d = SQUARE_DUTIES[i // SQUARE_EXPOSURES.size]
+    e = SQUARE_EXPOSURES[i % SQUARE_EXPOSURES.size]
+    return float(rho[i, j]), np.array([f0_cpr, d, j / n_phases, e])

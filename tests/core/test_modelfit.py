@@ -146,6 +146,48 @@ def test_lookalike_finds_a_high_duty_square_wave_whose_harmonics_dominate(phase)
     assert lookalike_rho(hp(x), hp) > 0.95
 
 
+def test_lookalike_finds_narrow_pulses_at_any_phase():
+    """Short dark or bright pulses (duty 0.05-0.2 or 0.8-0.95) of random period and phase over
+    a drifting scene: the search ends within 0.02 of the true square wave's correlation (the
+    oracle) in at least 37 of 40 cases. The 8-phase start grid before the all-phase one fell
+    short in 9. The 3 left are a known limit: a pulse this narrow spreads its power evenly
+    over many harmonics, and its fundamental is not among the candidates (the 3 strongest
+    lines, their halves and thirds)."""
+    rng = np.random.default_rng(20261124)
+    n = 720
+    rows = np.arange(n, dtype=float)
+    short = []
+    for _ in range(40):
+        period = rng.uniform(40.0, 250.0)
+        duty = rng.uniform(0.05, 0.2) if rng.random() < 0.3 else rng.uniform(0.8, 0.95)
+        hp = _highpass(n, period / (2 * math.pi * HIGHPASS_CYCLES))
+        scene = np.cumsum(rng.normal(0.0, 1.0, n))
+        light = square_rows(rows / period + rng.random(), duty, rng.uniform(0.01, 0.1))
+        y = hp(0.3 * light + 0.1 * scene / scene.std())
+        t = hp(light)
+        oracle = float(t @ y / math.sqrt(float(t @ t) * float(y @ y)))
+        found = lookalike_rho(y, hp)
+        if found < oracle - 0.02:
+            short.append((round(period, 1), round(duty, 3), round(oracle, 3), round(found, 3)))
+    assert len(short) <= 3, short
+
+
+def test_square_start_scores_every_phase_exactly_for_whole_cycles():
+    """The start grid's Fourier-series correlation equals the time-domain correlation of the
+    start it returns when the rows hold whole cycles (no high-pass: unit gain)."""
+    from lishield_guard.modelfit import _square_start
+
+    n, period = 800, 80.0
+    rows = np.arange(n, dtype=float)
+    y = square_rows(rows / period + 0.37, 0.85, 0.2)
+    y = y - y.mean()
+    rho, (f, d, ph, e) = _square_start(y, float(y @ y), 1.0 / period, None)
+    t = square_rows(f * rows + ph, d, e)
+    t = t - t.mean()
+    assert rho == pytest.approx(float(t @ y) / math.sqrt(float(t @ t) * float(y @ y)), abs=2e-3)
+    assert rho > 0.97
+
+
 def test_degenerate_inputs_are_quiet(rng):
     spec = PRESETS["table1-seq1"]
     with warnings.catch_warnings():
