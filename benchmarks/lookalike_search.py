@@ -44,10 +44,10 @@ def make_case(rng: np.random.Generator, n_rows: int):
     rows = np.arange(n_rows, dtype=float)
     hp = _highpass(n_rows, period_rows / (2 * math.pi * HIGHPASS_CYCLES))
     scene = np.cumsum(rng.normal(0.0, 1.0, n_rows))
-    light = hp(square_rows(rows / period_rows + phase, duty, exposure_cycles))
-    y = hp(0.3 * square_rows(rows / period_rows + phase, duty, exposure_cycles)
-           + scene_amp * scene / scene.std() + rng.normal(0.0, 0.01, n_rows))
-    oracle = float(light @ y / math.sqrt(float(light @ light) * float(y @ y)))
+    light = square_rows(rows / period_rows + phase, duty, exposure_cycles)
+    y = hp(0.3 * light + scene_amp * scene / scene.std() + rng.normal(0.0, 0.01, n_rows))
+    t = hp(light)
+    oracle = float(t @ y / math.sqrt(float(t @ t) * float(y @ y)))
     params = {"period_rows": period_rows, "duty": duty, "phase": phase,
               "exposure_cycles": exposure_cycles, "scene_amp": scene_amp, "oracle_rho": oracle}
     return y, hp, params
