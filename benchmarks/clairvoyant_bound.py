@@ -43,6 +43,7 @@ from lishield_guard.modelfit import (
 )
 from lishield_guard.spec import get_preset
 from lishield_guard.stats import clopper_pearson
+from lishield_guard.threads import one_thread_per_worker
 
 LUMA = {"W": 1.0, "R": 0.299, "G": 0.587, "B": 0.114}
 FARS = (0.001, 0.005, 0.01, 0.05)
@@ -134,7 +135,7 @@ def main() -> int:
     items = [it for it in items if it["label"] == 1 and it["rotation_mode"] != "bake"]
     if args.limit:
         items = items[: args.limit]
-    with ProcessPoolExecutor(args.jobs) as ex:
+    with ProcessPoolExecutor(args.jobs, initializer=one_thread_per_worker) as ex:
         res = []
         for i, r in enumerate(ex.map(_one, [(str(args.dataset), it) for it in items])):
             res.append(r)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from lishield_guard import AppConfig, detect, load_config
 from lishield_guard.stats import clopper_pearson
+from lishield_guard.threads import one_thread_per_worker
 
 # clopper_pearson re-exported for old imports
 __all__ = ["clopper_pearson", "decided_by", "kinds", "main"]
@@ -83,7 +84,7 @@ def main() -> int:
         stats: dict[str, list[int]] = defaultdict(lambda: [0, 0])
         t0 = time.perf_counter()
         paths = [args.dataset / it["file"] for it in items]
-        with ProcessPoolExecutor(args.jobs) as pool:
+        with ProcessPoolExecutor(args.jobs, initializer=one_thread_per_worker) as pool:
             outcomes = list(pool.map(_judge, paths, [cfg] * len(paths), chunksize=4))
         for it, (protected, stage, ms) in zip(items, outcomes, strict=True):
             extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]

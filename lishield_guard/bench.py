@@ -257,6 +257,9 @@ def _bench_worker(items: list[BenchItem], names: list[str], config_path: str | N
                   repeat: int, deadline_unix_s: float | None) -> dict:
     """Worker-process body of `run_bench_parallel`: settings rebuilt from names and a path."""
     from lishield_guard.config import load_config
+    from lishield_guard.threads import one_thread_per_worker
+
+    one_thread_per_worker()
 
     if deadline_unix_s is not None and time.time() > deadline_unix_s:
         return {"records": [], "n_skipped": len(items)}

@@ -21,6 +21,7 @@ from typing import Any
 
 from lishield_guard.config import AppConfig
 from lishield_guard.errors import LishieldError
+from lishield_guard.threads import one_thread_per_worker
 
 __all__ = [
     "ARCHIVE_SUFFIXES",
@@ -367,17 +368,10 @@ def build_record(item: ScanItem, fields: dict[str, Any] | None = None) -> dict[s
 _WORKER_CONFIG: AppConfig | None = None
 
 
-def _single_thread() -> None:
-    """One core per worker: OpenCV's own thread pool would oversubscribe the machine."""
-    import cv2
-
-    cv2.setNumThreads(1)
-
-
 def _init_worker(config: AppConfig) -> None:
     global _WORKER_CONFIG
     _WORKER_CONFIG = config
-    _single_thread()
+    one_thread_per_worker()
     import lishield_guard.detect  # noqa: F401 - warm the imports once per worker
 
 
@@ -477,7 +471,7 @@ def _run_pool(items: Iterable[ScanItem], *, config: AppConfig, jobs: int,
 
 
 def _scan_on_dask(source: str | bytes, config: AppConfig) -> dict[str, Any]:
-    _single_thread()
+    one_thread_per_worker()
     return scan_source(source, config)
 
 

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lishield_guard.threads import one_thread_per_worker
+
 PHOTO_FUNCS = ("astronaut", "brick", "camera", "cat", "chelsea", "clock", "coffee", "coins",
                "colorwheel", "grass", "gravel", "horse", "hubble_deep_field",
                "immunohistochemistry", "logo", "moon", "page", "rocket", "text", "retina",
@@ -107,6 +109,7 @@ def _one(args: tuple[int, int]) -> dict:
 
 
 def _init(out: str) -> None:
+    one_thread_per_worker()
     _one.photos = bundled_photos()  # type: ignore[attr-defined]
     _one.out = Path(out)  # type: ignore[attr-defined]
 

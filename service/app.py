@@ -11,6 +11,7 @@ from fastapi import FastAPI
 
 import lishield_guard
 from lishield_guard import AppConfig, Limits, load_config
+from lishield_guard.threads import one_thread_per_worker
 from service.access_log import RequestContextMiddleware, configure_logging
 from service.deps import DetectFn, DetectPool, ServiceState
 from service.errors import install_error_handlers
@@ -72,6 +73,7 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):
+        one_thread_per_worker()  # detections run side by side in threads: one BLAS thread each
         if settings.warmup:
             loop = asyncio.get_running_loop()
             await loop.run_in_executor(pool.executor, lishield_guard.detect, _warmup_image(),

@@ -50,6 +50,7 @@ import numpy as np
 from lishield_guard.camera import CameraModel
 from lishield_guard.errors import ConfigError
 from lishield_guard.spec import get_preset
+from lishield_guard.threads import one_thread_per_worker
 
 __all__ = [
     "MIXES",
@@ -375,12 +376,6 @@ def _work(args: tuple) -> dict:
     return {"file": name, "index": index, **rec}
 
 
-def _init_worker() -> None:
-    import cv2
-
-    cv2.setNumThreads(1)
-
-
 def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
                   mix: Mix | str = "default", size: str | tuple[int, int] = "1080p",
                   jobs: int = 1, progress: bool | Callable = True) -> Path:
@@ -447,7 +442,7 @@ def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
 
             ctx = mp.get_context("spawn")
             with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
-                                     initializer=_init_worker) as ex:
+                                     initializer=one_thread_per_worker) as ex:
                 for rec in ex.map(_work, tasks, chunksize=max(1, min(8, n // (4 * jobs)))):
                     records.append(rec)
                     bar.update()

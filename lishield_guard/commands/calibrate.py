@@ -16,6 +16,7 @@ from pathlib import Path
 import typer
 
 from lishield_guard.commands import ExitCode
+from lishield_guard.threads import one_thread_per_worker
 
 __all__ = ["calibrate_command", "register"]
 
@@ -63,6 +64,7 @@ def _code_key() -> str:
 
 
 def _init_worker(cfg, grid, paper_grid, cache_dir: str | None) -> None:
+    one_thread_per_worker()
     _W.update(cfg=cfg, grid=grid, paper_grid=paper_grid, cache=cache_dir,
               cfg_key=_hash(repr(cfg.detector), repr(cfg.policies), repr(cfg.limits),
                             _code_key()))
