@@ -56,7 +56,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -597,7 +597,7 @@ class Summary:
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self)}  # asdict deep-copies: slow
         d["setting"] = {"profile": self.setting.profile, **self.setting.as_dict}
         d["label"] = self.setting.label()
         return d
@@ -630,20 +630,28 @@ def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndar
     for i, g in enumerate(pos_groups or []):
         for key, val in g.items():
             groups.setdefault((key, val), []).append(i)
+    # every setting at once: detections per group, false alarms, and the bounds of each count
+    group_hits = {kv: pos_prot[:, idx].sum(axis=1).tolist() for kv, idx in sorted(groups.items())}
+    false_alarms = clean_prot.sum(axis=1).tolist()
+    detected = pos_prot.sum(axis=1).tolist()
+    bounds = {k: (far_upper_bound(k, n_clean), two_sided_upper(k, n_clean))
+              for k in set(false_alarms)}
+    denoms = (cands.sum(axis=1) if cands.ndim == 2
+              else np.full(len(settings), cands.sum())).tolist()
+    match_counts = np.asarray(clean_hits, dtype=float).sum(axis=1).tolist()
     for si, s in enumerate(settings):
-        k = int(clean_prot[si].sum())
-        denom = float(cands[si].sum() if cands.ndim == 2 else cands.sum())
-        det = int(pos_prot[si].sum())
-        per = {}
-        for (key, val), idx in sorted(groups.items()):
-            hit = int(pos_prot[si, idx].sum())
-            per.setdefault(key, {})[val] = {"detected": hit, "n": len(idx),
-                                            "rate": hit / len(idx)}
+        k = int(false_alarms[si])
+        denom = float(denoms[si])
+        det = int(detected[si])
+        per: dict = {}
+        for (key, val), hits in group_hits.items():
+            n = len(groups[(key, val)])
+            per.setdefault(key, {})[val] = {"detected": int(hits[si]), "n": n,
+                                            "rate": hits[si] / n}
         out.append(Summary(
             setting=s, n_clean=n_clean, false_alarms=k, far=k / n_clean if n_clean else math.nan,
-            far_upper=far_upper_bound(k, n_clean),
-            far_upper_two_sided=two_sided_upper(k, n_clean),
-            false_match_fraction=float(clean_hits[si].sum() / denom) if denom else 0.0,
+            far_upper=bounds[k][0], far_upper_two_sided=bounds[k][1],
+            false_match_fraction=match_counts[si] / denom if denom else 0.0,
             n_pos=n_pos, detected=det, detection=det / n_pos if n_pos else math.nan,
             time_ms_per_image=float(time_ms[si]), per_group=per))
     return out

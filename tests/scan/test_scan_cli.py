@@ -72,9 +72,9 @@ def test_torn_last_line_repaired(tmp_path, run_cli):
     assert sorted(r["path"] for r in recs) == sorted(json.loads(x)["path"] for x in lines)
 
 
-@pytest.mark.timeout(900)  # correctness, not speed: ~140 detections on one core, on a busy CI
+@pytest.mark.timeout(900)  # correctness, not speed: ~50 detections on one core, on a busy CI
 def test_resume_after_sigkill(tmp_path):
-    names = [f"d{i // 50}/{i:03d}.jpg" for i in range(150)]
+    names = [f"d{i // 20}/{i:03d}.jpg" for i in range(60)]
     write_images(tmp_path / "imgs", names)
     out = tmp_path / "o.jsonl"
     cmd = [str(CLI), "scan", str(tmp_path / "imgs"), "-o", str(out), "--jobs", "1", "--quiet"]
@@ -87,13 +87,13 @@ def test_resume_after_sigkill(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     partial = out.read_bytes().count(b"\n")
-    assert 10 <= partial < 150, "the scan must be killed mid-way"
+    assert 10 <= partial < 60, "the scan must be killed mid-way"
     res = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=800)
     assert res.returncode == 0, res.stderr
     lines = out.read_text().splitlines()
     recs = [json.loads(line) for line in lines]  # every line valid JSON
     paths = [r["path"] for r in recs]
-    assert len(paths) == len(set(paths)) == 150
+    assert len(paths) == len(set(paths)) == 60
     assert {Path(p).relative_to(tmp_path / "imgs").as_posix() for p in paths} == set(names)
 
 
