@@ -4,9 +4,8 @@ The exact fit's gain divides the barcode's misfit by the best steady square wave
 look-alike search that stops short of the true square wave inflates the gain of a PWM or
 mains light and can pass it as a barcode. This benchmark renders steady square waves (random
 period, duty, phase and exposure, behind the fit's high-pass, over a drifting scene plus
-noise) and runs the search with each number of refined starts (`modelfit.SQUARE_REFINES`)
-and of sub-harmonic candidates per periodogram line (`modelfit.SQUARE_SUBHARMONICS`), in a
-shuffled order per case so that machine noise falls on all settings alike.
+noise) and runs the search with each number of refined starts (`modelfit.SQUARE_REFINES`),
+in a shuffled order per case so that machine noise falls on all settings alike.
 
 Each case's reference is the *oracle* rho: the correlation of the rows with the true square
 wave, high-passed the same way. Reported per setting: cases where the search ended more than
@@ -17,7 +16,7 @@ median per-case time ratio to the shipped setting.
 Usage::
 
     .venv/bin/python benchmarks/lookalike_search.py [--cases 300] [--refines 1,2,4,9]
-        [--subharmonics 3,8] [--seed 1] [--tol 0.02] [--json OUT.json]
+        [--seed 1] [--tol 0.02] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -54,52 +53,42 @@ def make_case(rng: np.random.Generator, n_rows: int):
     return y, hp, params
 
 
-def _key(refines: int, subharmonics: int) -> str:
-    """Name of one setting: refined starts and sub-harmonics per periodogram line."""
-    return f"r{refines}/s{subharmonics}"
-
-
-def run(cases: int, settings: list[tuple[int, int]], seed: int, n_rows: int) -> list[dict]:
-    """Rho and seconds of every (refines, subharmonics) setting on every case (settings in a
-    shuffled order per case)."""
+def run(cases: int, refines: list[int], seed: int, n_rows: int) -> list[dict]:
+    """Rho and seconds of every setting on every case (settings in a shuffled order)."""
     rng = np.random.default_rng(seed)
-    shipped = (modelfit.SQUARE_REFINES, modelfit.SQUARE_SUBHARMONICS)
+    shipped = modelfit.SQUARE_REFINES
     out = []
     try:
         for i in range(cases):
             y, hp, params = make_case(rng, n_rows)
             rec = {"case": i, **params, "rho": {}, "s": {}}
-            for j in rng.permutation(len(settings)):
-                refines, subharmonics = settings[j]
-                modelfit.SQUARE_REFINES, modelfit.SQUARE_SUBHARMONICS = refines, subharmonics
+            for r in rng.permutation(refines):
+                modelfit.SQUARE_REFINES = int(r)
                 t0 = time.perf_counter()
-                rho = lookalike_rho(y, hp)
-                rec["s"][_key(refines, subharmonics)] = time.perf_counter() - t0
-                rec["rho"][_key(refines, subharmonics)] = rho
+                rec["rho"][int(r)] = lookalike_rho(y, hp)
+                rec["s"][int(r)] = time.perf_counter() - t0
             out.append(rec)
     finally:
-        modelfit.SQUARE_REFINES, modelfit.SQUARE_SUBHARMONICS = shipped
+        modelfit.SQUARE_REFINES = shipped
     return out
 
 
-def summarise(recs: list[dict], settings: list[tuple[int, int]], tol: float) -> list[dict]:
+def summarise(recs: list[dict], refines: list[int], tol: float) -> list[dict]:
     """Per setting: misses (rho more than ``tol`` below the oracle) with a 95% interval,
     median and worst shortfall, median time and median paired time ratio to the shipped
     setting."""
-    shipped = _key(modelfit.SQUARE_REFINES, modelfit.SQUARE_SUBHARMONICS)
+    shipped = modelfit.SQUARE_REFINES
     oracle = np.array([r["oracle_rho"] for r in recs])
     rows = []
-    for refines, subharmonics in settings:
-        k = _key(refines, subharmonics)
+    for k in refines:
         rho = np.array([r["rho"][k] for r in recs])
         s = np.array([r["s"][k] for r in recs])
         short = oracle - rho
         misses = int((short > tol).sum())
         lo, hi = clopper_pearson(misses, len(recs))
         ratio = (np.median(s / np.array([r["s"][shipped] for r in recs]))
-                 if shipped in recs[0]["s"] else math.nan)
-        rows.append({"setting": k, "refines": refines, "subharmonics": subharmonics,
-                     "misses": misses, "n": len(recs), "miss_lo": lo,
+                 if shipped in refines else math.nan)
+        rows.append({"refines": k, "misses": misses, "n": len(recs), "miss_lo": lo,
                      "miss_hi": hi, "median_shortfall": float(np.median(short)),
                      "worst_shortfall": float(short.max()), "median_ms": 1e3 * float(np.median(s)),
                      "time_ratio_to_shipped": float(ratio)})
@@ -112,28 +101,23 @@ def main() -> None:
     ap.add_argument("--cases", type=int, default=300)
     ap.add_argument("--refines", default="1,2,4,9",
                     help="numbers of refined starts to compare (9 = every candidate)")
-    ap.add_argument("--subharmonics", default=str(modelfit.SQUARE_SUBHARMONICS),
-                    help="sub-harmonics per periodogram line to compare, e.g. 3,8 "
-                         "(3 = f, f/2, f/3)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--rows", type=int, default=720, help="rows per profile (default 720)")
     ap.add_argument("--tol", type=float, default=0.02,
                     help="shortfall against the oracle rho that counts as a miss (default 0.02)")
     ap.add_argument("--json", help="write the per-case records and the summary here")
     args = ap.parse_args()
-    settings = [(r, s) for s in sorted({int(v) for v in args.subharmonics.split(",")})
-                for r in sorted({int(v) for v in args.refines.split(",")})]
-    recs = run(args.cases, settings, args.seed, args.rows)
-    summary = summarise(recs, settings, args.tol)
-    print(f"{args.cases} steady square waves, {args.rows} rows, seed {args.seed}; shipped "
-          f"{_key(modelfit.SQUARE_REFINES, modelfit.SQUARE_SUBHARMONICS)} "
-          f"(SQUARE_REFINES / SQUARE_SUBHARMONICS)")
+    refines = sorted({int(v) for v in args.refines.split(",")})
+    recs = run(args.cases, refines, args.seed, args.rows)
+    summary = summarise(recs, refines, args.tol)
+    print(f"{args.cases} steady square waves, {args.rows} rows, seed {args.seed}; "
+          f"shipped SQUARE_REFINES = {modelfit.SQUARE_REFINES}")
     print(f"median oracle rho {np.median([r['oracle_rho'] for r in recs]):.3f}; a miss ends "
           f"more than {args.tol} below the oracle")
-    print(f"{'setting':>7}  {'misses':>13}  {'95% CI':>15}  {'med shortfall':>13}  "
+    print(f"{'refines':>7}  {'misses':>13}  {'95% CI':>15}  {'med shortfall':>13}  "
           f"{'worst':>7}  {'med ms':>7}  {'time / shipped':>14}")
     for r in summary:
-        print(f"{r['setting']:>7}  {r['misses']:>6}/{r['n']:<6}  "
+        print(f"{r['refines']:>7}  {r['misses']:>6}/{r['n']:<6}  "
               f"[{r['miss_lo']:.3f}, {r['miss_hi']:.3f}]  {r['median_shortfall']:>13.4f}  "
               f"{r['worst_shortfall']:>7.3f}  {r['median_ms']:>7.1f}  "
               f"{r['time_ratio_to_shipped']:>14.2f}")

@@ -64,9 +64,7 @@ SQUARE_DUTIES = np.arange(1, 20) / 20.0  # look-alike start grid: duty 0.05 ... 
 SQUARE_EXPOSURES = np.array([0.0, 0.15, 0.3, 0.5, 0.75, 1.5])  # box widths, look-alike cycles
 SQUARE_HARMONICS = 48  # harmonics of a candidate frequency in the start grid's Fourier series
 SQUARE_MIN_PHASES = 64  # phases per look-alike cycle scanned (more when the harmonics need it)
-SQUARE_PEAKS = 3  # periodogram lines whose sub-harmonics are look-alike candidates
-SQUARE_SUBHARMONICS = 8  # candidates f, f/2, ..., f/8 of each line: a short pulse spreads its
-#                          power over many harmonics, so its fundamental is often not a line
+SQUARE_PEAKS = 3
 SQUARE_REFINES = 4  # look-alike grid starts (best per candidate frequency) refined
 
 
@@ -496,11 +494,8 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     """Best correlation of a stationary square wave (any frequency, duty, phase, exposure)
     with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
 
-    Candidate fundamentals are the periodogram's `SQUARE_PEAKS` strongest lines and their
-    sub-harmonics down to 1/`SQUARE_SUBHARMONICS` (a square wave's fundamental is not always
-    its strongest line after the high-pass, and a short pulse's power spreads almost evenly
-    over many harmonics); candidates closer than a quarter cycle over the rows are scored
-    once, and none below one cycle over the rows is tried. For each
+    Candidate fundamentals are the periodogram's strongest peaks and their half and third (a
+    square wave's fundamental is not always its strongest line after the high-pass). For each
     candidate, `_square_start` scores every duty and exposure of a grid at every phase at
     once; the best start of each of the `SQUARE_REFINES` best candidates is refined with
     Nelder-Mead on the exact, high-passed template, and the best refined fit is returned.
@@ -524,10 +519,7 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
         k = int(np.argmax(power))
         if not power[k] > 0:
             break
-        for j in range(1, SQUARE_SUBHARMONICS + 1):
-            f0 = freqs[k] / j
-            if f0 * n >= 1.0 and all(abs(f0 - c) * n > 0.25 for c in cands):
-                cands.append(f0)
+        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
         power[max(0, k - 8): k + 9] = 0.0
     if not cands:
         return 0.0
