@@ -257,9 +257,6 @@ def _bench_worker(items: list[BenchItem], names: list[str], config_path: str | N
                   repeat: int, deadline_unix_s: float | None) -> dict:
     """Worker-process body of `run_bench_parallel`: settings rebuilt from names and a path."""
     from lishield_guard.config import load_config
-    from lishield_guard.threads import one_thread_per_worker
-
-    one_thread_per_worker()
 
     if deadline_unix_s is not None and time.time() > deadline_unix_s:
         return {"records": [], "n_skipped": len(items)}
@@ -304,12 +301,14 @@ def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    from lishield_guard.threads import one_thread_per_worker
+
     cfg = None if config_path is None else str(config_path)
     chunks = [list(items[i:i + chunk]) for i in range(0, len(items), chunk)]
     deadline = None if time_budget_s is None else time.time() + time_budget_s
     records: list[dict] = []
-    with ProcessPoolExecutor(max_workers=max(1, jobs),
-                             mp_context=mp.get_context("spawn")) as ex:
+    with ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=mp.get_context("spawn"),
+                             initializer=one_thread_per_worker) as ex:
         futs = []
         for c in chunks:
             futs.append(ex.submit(_bench_worker, c, list(names), cfg, repeat, deadline))

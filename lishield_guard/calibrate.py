@@ -626,12 +626,13 @@ def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndar
     out = []
     n_clean = clean_prot.shape[1]
     n_pos = pos_prot.shape[1]
-    groups: dict[tuple[str, str], np.ndarray] = {}
+    groups: dict[tuple[str, str], list[int]] = {}
     for i, g in enumerate(pos_groups or []):
         for key, val in g.items():
             groups.setdefault((key, val), []).append(i)
     # every setting at once: detections per group, false alarms, and the bounds of each count
-    group_hits = {kv: pos_prot[:, idx].sum(axis=1).tolist() for kv, idx in sorted(groups.items())}
+    group_hits = {kv: (len(idx), pos_prot[:, idx].sum(axis=1).tolist())
+                  for kv, idx in sorted(groups.items())}
     false_alarms = clean_prot.sum(axis=1).tolist()
     detected = pos_prot.sum(axis=1).tolist()
     bounds = {k: (far_upper_bound(k, n_clean), two_sided_upper(k, n_clean))
@@ -644,8 +645,7 @@ def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndar
         denom = float(denoms[si])
         det = int(detected[si])
         per: dict = {}
-        for (key, val), hits in group_hits.items():
-            n = len(groups[(key, val)])
+        for (key, val), (n, hits) in group_hits.items():
             per.setdefault(key, {})[val] = {"detected": int(hits[si]), "n": n,
                                             "rate": hits[si] / n}
         out.append(Summary(

@@ -454,40 +454,67 @@ def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
     u_i = M i / P + phi. Its correlation with the high-passed rows y is
     2 Re sum_k g_k T_k conj(Y_k) exp(2 pi i k phi / M), Y_k = sum_i y_i exp(-2 pi i k i / P)
     and g_k the high-pass gain at k / P: one inverse FFT gives every phase at once, and the
-    template's high-passed power is n sum_k |g_k T_k|^2 * 2 (exact for whole periods, close
-    otherwise). The c_1 grid's ratio steps keep the fastest tone's drift over a slot small.
+    template's high-passed power is n sum_k |g_k T_k|^2 * 2 (`_best_phase`). The c_1 grid's
+    ratio steps keep the fastest tone's drift over a slot small.
     """
     yy = float(y @ y)
     c_lo, c_hi = c_range
     if not yy > 0 or c_lo > c_hi:
         c = min(max(c_lo, 1.0), max(c_hi, 1.0))
         return c, 0.0, 0.0
-    n = y.size
     k_max = int(max(1, min(period_rows / 2.0 - 1.0,
                            SCAN_HARMONICS_PER_CYCLE * m * c_hi * knots.rel.max() + 8)))
     k = np.arange(1, k_max + 1, dtype=np.float64)
-    y_k = np.exp(np.outer(k, np.arange(n)) * (-2j * math.pi / period_rows)) @ y
     g = highpass_gain_at(k / period_rows, sigma_rows)
-    n_phases = 1 << int(math.ceil(math.log2(max(SCAN_MIN_PHASES, 4 * k_max))))
+    gy_k = g * np.conj(_harmonics(y, k, -2j * math.pi / period_rows))
     exposures = np.arange(0.0, m + 1e-9, SCAN_EXPOSURE_STEP_SLOTS)
-    w = np.outer(np.maximum(exposures, MIN_BOX), k) * (2j * math.pi / m)
-    box = np.expm1(w) / w  # (n_exposures, K): mean over [u, u + e] of exp(2 pi i k u / M)
+    box = _box_transfer(exposures, k, m)  # (n_exposures, K); exposures and u in slots
     n_c = int(math.floor(math.log(c_hi / c_lo) / math.log(SCAN_CYCLE_STEP))) + 1
     best = (-2.0, c_lo, 0.0, 0.0)
-    z = np.zeros((exposures.size, n_phases), dtype=np.complex128)
     for c in c_lo * SCAN_CYCLE_STEP ** np.arange(n_c):
         a, b = knots.on_intervals(float(c))
         ka = np.outer(k, a) * (-2j * math.pi / m)
         kb = np.outer(k, b) * (-2j * math.pi / m)
         t_k = box * ((np.exp(ka) - np.exp(kb)).sum(axis=1) / (2j * math.pi * k))
-        z[:, 1:k_max + 1] = t_k * (g * np.conj(y_k))
-        num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
-        norms = np.sqrt(np.maximum(2.0 * n * (np.abs(t_k * g) ** 2).sum(axis=1), 1e-30) * yy)
-        rho = num / norms[:, None]
-        i_e, i_p = np.unravel_index(int(np.argmax(rho)), rho.shape)
-        if rho[i_e, i_p] > best[0]:
-            best = (float(rho[i_e, i_p]), float(c), m * i_p / n_phases, float(exposures[i_e]))
+        rho, i_e, phase = _best_phase(t_k * gy_k, np.abs(t_k * g) ** 2, y.size, yy,
+                                      SCAN_MIN_PHASES)
+        if rho > best[0]:
+            best = (rho, float(c), m * phase, float(exposures[i_e]))
     return best[1:]
+
+
+def _harmonics(y: np.ndarray, k: np.ndarray, step: complex) -> np.ndarray:
+    """Y_k = sum_i y_i exp(k i step) of the rows ``y``; ``step = -2 pi j f`` for harmonics of
+    a fundamental of f cycles per row."""
+    return np.exp(np.outer(k, np.arange(y.size)) * step) @ y
+
+
+def _box_transfer(widths: np.ndarray, k: np.ndarray, period: float = 1.0) -> np.ndarray:
+    """(n_widths, K): mean over [u, u + e] of exp(2 pi j k u / period), an exposure box's
+    transfer at harmonic k (widths e in the units of ``period``; below `MIN_BOX` as MIN_BOX)."""
+    w = np.outer(np.maximum(widths, MIN_BOX), k) * (2j * math.pi / period)
+    return np.expm1(w) / w
+
+
+def _best_phase(cross_k: np.ndarray, power_k: np.ndarray, n_rows: int, yy: float,
+                min_phases: int) -> tuple[float, int, float]:
+    """Best correlation over templates and every phase, from Fourier series: (rho, template
+    index, phase in cycles of the fundamental).
+
+    ``cross_k`` (T, K) holds each template's high-passed harmonic k (k = 1..K) times the rows'
+    conj(Y_k), ``power_k`` (T, K) its squared magnitude; the correlation at phase phi is
+    2 Re sum_k cross_k exp(2 pi i k phi) over sqrt(2 n sum_k power_k * yy), one inverse FFT for
+    every phase (exact for whole cycles over the rows, close otherwise).
+    """
+    k_max = cross_k.shape[1]
+    n_phases = 1 << int(math.ceil(math.log2(max(min_phases, 4 * k_max))))
+    z = np.zeros((cross_k.shape[0], n_phases), dtype=np.complex128)
+    z[:, 1:k_max + 1] = cross_k
+    num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
+    norms = np.sqrt(np.maximum(2.0 * n_rows * power_k.sum(axis=1), 1e-30) * yy)
+    rho = num / norms[:, None]
+    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    return float(rho[i, j]), int(i), j / n_phases
 
 
 def lookalike_rho(y_hp: np.ndarray, hp) -> float:
@@ -548,24 +575,18 @@ def _square_start(y: np.ndarray, yy: float, f0_cpr: float, gain_at) -> tuple[flo
     S_k = (1 - exp(-2 pi i k d)) / (2 pi i k) times the box's (exp(2 pi i k e) - 1) /
     (2 pi i k e); row i sits at u_i = f0 i + phi, so its correlation with the rows is
     2 Re sum_k g_k S_k B_k conj(Y_k) exp(2 pi i k phi), Y_k = sum_i y_i exp(-2 pi i k f0 i),
-    g_k the high-pass gain (``gain_at``; 1 when None): one inverse FFT gives every phase (the
-    method of `_scan_start`; exact for whole cycles, close otherwise).
+    g_k the high-pass gain (``gain_at``; 1 when None): `_best_phase` scores every phase with
+    one inverse FFT, as for `_scan_start`'s barcode templates.
     """
-    n = y.size
     k_max = int(max(1, min(SQUARE_HARMONICS, math.floor(0.5 / f0_cpr))))
     k = np.arange(1, k_max + 1, dtype=np.float64)
-    y_k = np.exp(np.outer(k, np.arange(n)) * (-2j * math.pi * f0_cpr)) @ y
     g = gain_at(k * f0_cpr) if gain_at is not None else np.ones(k_max)
     s_k = -np.expm1(np.outer(SQUARE_DUTIES, k) * (-2j * math.pi)) / (2j * math.pi * k)
-    w = np.outer(np.maximum(SQUARE_EXPOSURES, MIN_BOX), k) * (2j * math.pi)
-    t_k = (s_k[:, None, :] * (np.expm1(w) / w)[None, :, :] * g).reshape(-1, k_max)
-    n_phases = 1 << int(math.ceil(math.log2(max(SQUARE_MIN_PHASES, 4 * k_max))))
-    z = np.zeros((t_k.shape[0], n_phases), dtype=np.complex128)
-    z[:, 1:k_max + 1] = t_k * np.conj(y_k)
-    num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
-    norms = np.sqrt(np.maximum(2.0 * n * (np.abs(t_k) ** 2).sum(axis=1), 1e-30) * yy)
-    rho = num / norms[:, None]
-    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
+    box = _box_transfer(SQUARE_EXPOSURES, k)
+    t_k = (s_k[:, None, :] * box[None, :, :] * g).reshape(-1, k_max)
+    y_k = _harmonics(y, k, -2j * math.pi * f0_cpr)
+    rho, i, phase = _best_phase(t_k * np.conj(y_k), np.abs(t_k) ** 2, y.size, yy,
+                                SQUARE_MIN_PHASES)
     d = SQUARE_DUTIES[i // SQUARE_EXPOSURES.size]
     e = SQUARE_EXPOSURES[i % SQUARE_EXPOSURES.size]
-    return float(rho[i, j]), np.array([f0_cpr, d, j / n_phases, e])
+    return rho, np.array([f0_cpr, d, phase, e])
