@@ -116,6 +116,7 @@ def _full_scale(plane: np.ndarray) -> float:
 
 
 def _detect_paper(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
+    PAPER_MIN_BLOCK_ROWS = 4  # noqa: N806 - paper.block_peaks_hz skips shorter blocks
     det = config.detector
     skipped: list[str] = []
     with timer("planes"):
@@ -126,6 +127,17 @@ def _detect_paper(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict
             planes = {"W": decoded.luma}
     if min(decoded.luma.shape) < 2 * det.n_block_rows:
         skipped.append("image smaller than the block grid")
+    n_rows = decoded.luma.shape[0]
+    block_rows = np.diff(np.linspace(0, n_rows, det.n_block_rows + 1).round()).max()
+    why = None
+    if not any(p.specs for p in config.policies):
+        why = "no policy configured: nothing to look for"
+    elif block_rows < PAPER_MIN_BLOCK_ROWS:  # block_peaks_hz skips every block
+        why = (f"image too small: {n_rows} rows give blocks of < {PAPER_MIN_BLOCK_ROWS} rows "
+               f"(n_block_rows={det.n_block_rows})")
+    if why is not None:
+        return Verdict(False, None, 0, 0, evidence={"reason": why}, skipped=tuple(skipped),
+                       timings_ms=timer.ms, profile="paper", undetermined=why)
     with timer("algorithm1"):
         out = run_paper(planes, config.policies, det)
     return Verdict(protected=bool(out["protected"]), policy=out["policy"],
@@ -532,10 +544,16 @@ def decide(evidence: Evidence, config: AppConfig) -> Verdict:
 
 def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
              orientation: int, fmt: str) -> Verdict:
-    if not candidates:
+    if not candidates:  # the detector could not look: undetermined, never clean
+        if not any(p.specs for p in config.policies):
+            why = "no policy configured: nothing to look for"
+        else:
+            why = (f"image too small: fewer than {MIN_ROWS} lines on every analysed axis ("
+                   + "; ".join(skipped) + ")" if skipped else "nothing analysable")
         return Verdict(False, None, 0, config.detector.min_tones,
-                       evidence={"reason": "nothing analysable", "candidates": []},
-                       skipped=tuple(skipped), timings_ms=timings, profile="default")
+                       evidence={"reason": why, "candidates": []},
+                       skipped=tuple(skipped), timings_ms=timings, profile="default",
+                       undetermined=why)
     axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
     tried = sorted(({"axis": a, "policy": p, **c.to_dict()} for a, p, c in candidates),
                    key=lambda d: (-d["n_matched"], -d["purity"]))
