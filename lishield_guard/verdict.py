@@ -1,4 +1,14 @@
-"""The detector's result: a frozen Verdict with evidence, skipped work and timings."""
+"""The detector's result: a frozen Verdict with evidence, skipped work and timings.
+
+A verdict has one of three statuses (`Verdict.status`):
+
+- ``"protected"``: a configured policy's barcode was found;
+- ``"clean"``: the detector analysed the image and found none;
+- ``"undetermined"``: the detector could not look (``undetermined`` holds the reason), e.g. an
+  image with fewer lines than the detector needs on every analysed axis (default profile: 64,
+  `lishield_guard.detect.MIN_ROWS`), or smaller than the paper profile's block grid. An
+  undetermined verdict is never "clean": callers that must fail closed check ``status``.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +16,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Verdict"]
+__all__ = ["STATUSES", "Verdict"]
+
+#: Every value of `Verdict.status`.
+STATUSES = ("protected", "clean", "undetermined")
 
 
 def _clean(obj: Any) -> Any:
@@ -46,6 +59,9 @@ class Verdict:
         Detector profile that produced the verdict.
     score : float
         Evidence strength in [0, 1]; compared against the configured threshold.
+    undetermined : str or None
+        Why the detector could not look at this image (None when it did). An undetermined
+        verdict has ``protected=False`` but is not clean: see `status`.
     """
 
     protected: bool
@@ -57,10 +73,19 @@ class Verdict:
     timings_ms: dict = field(default_factory=dict)
     profile: str = "default"
     score: float = 0.0
+    undetermined: str | None = None
+
+    @property
+    def status(self) -> str:
+        """``"undetermined"``, ``"protected"`` or ``"clean"`` (one of `STATUSES`)."""
+        if self.undetermined is not None:
+            return "undetermined"
+        return "protected" if self.protected else "clean"
 
     def to_dict(self, *, explain: bool = True) -> dict:
         """JSON-ready dict; ``explain=False`` leaves out the bulky evidence."""
         d = {
+            "status": self.status,
             "protected": bool(self.protected),
             "policy": self.policy,
             "matches": int(self.matches),
@@ -69,6 +94,7 @@ class Verdict:
             "profile": self.profile,
             "skipped": list(self.skipped),
             "timings_ms": {k: round(float(v), 3) for k, v in self.timings_ms.items()},
+            "undetermined_reason": self.undetermined,
         }
         if explain:
             d["evidence"] = self.evidence
