@@ -23,7 +23,8 @@ app = typer.Typer(
 )
 
 # Modules under lishield_guard/commands that register commands, in help order.
-COMMAND_MODULES = ("detect", "scan", "serve", "calibrate", "bench", "spec", "firmware", "synth")
+COMMAND_MODULES = ("detect", "scan", "serve", "calibrate", "bench", "spec", "firmware", "synth",
+                   "config")
 
 for _name in COMMAND_MODULES:
     try:

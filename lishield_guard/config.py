@@ -27,6 +27,7 @@ __all__ = [
     "default_config",
     "dump_config",
     "load_config",
+    "merge_tables",
 ]
 
 DEFAULT_CONFIG_RESOURCE = "default.toml"
@@ -363,14 +364,8 @@ def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
         raise ConfigError(f"{source}: {exc}") from exc
 
 
-def load_config(path: str | Path | None = None) -> AppConfig:
-    """Read a TOML config file; ``None`` reads the shipped default.
-
-    Raises
-    ------
-    ConfigError
-        If the file is missing, is not valid TOML, or holds unknown keys or bad values.
-    """
+def _read_table(path: str | Path | None) -> tuple[dict, str, str]:
+    """(TOML table, source label, header comment lines) of a config file; None: shipped."""
     if path is None:
         text = resources.files("lishield_guard.data").joinpath(DEFAULT_CONFIG_RESOURCE).read_text()
         source = "default.toml"
@@ -378,15 +373,70 @@ def load_config(path: str | Path | None = None) -> AppConfig:
         p = Path(path)
         try:
             text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"cannot read config file {str(p)!r}: {exc.strerror}") from exc
+        except (OSError, UnicodeDecodeError) as exc:
+            why = getattr(exc, "strerror", None) or str(exc)
+            raise ConfigError(f"cannot read config file {str(p)!r}: {why}") from exc
         source = str(p)
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
     header = "\n".join(ln for ln in text.splitlines() if ln.startswith("#"))
-    return _build(table, source=source, header=header)
+    return table, source, header
+
+
+def merge_tables(base: dict, override: dict) -> dict:
+    """A user's config table laid over the shipped one.
+
+    ``[detector]`` and ``[limits]`` are merged key by key (keys left out keep the shipped,
+    calibrated values, never the dataclass defaults); a ``policies`` key, when present,
+    replaces the shipped policies as a whole (``policies = []`` leaves none, which
+    `load_config` refuses). Other top-level keys are taken from ``override``.
+
+    Examples
+    --------
+    >>> merge_tables({"detector": {"a": 1, "b": 2}, "policies": [1]},
+    ...              {"detector": {"b": 3}})
+    {'detector': {'a': 1, 'b': 3}, 'policies': [1]}
+    """
+    out = {k: v for k, v in base.items() if k != "calibration"}
+    for key, value in override.items():
+        if key in ("detector", "limits") and isinstance(value, dict) \
+                and isinstance(out.get(key), dict):
+            out[key] = {**out[key], **value}
+        else:
+            out[key] = value
+    return out
+
+
+def load_config(path: str | Path | None = None, *, merge: bool = True) -> AppConfig:
+    """Read a TOML config file laid over the shipped default; ``None`` reads the shipped default.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A user's config file. It may hold only the keys it changes: the rest, policies
+        included, comes from the shipped calibrated ``default.toml`` (see `merge_tables`).
+    merge : bool
+        False reads the file alone (missing keys take the dataclass defaults); for tools that
+        inspect one file as written.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, is not valid TOML, holds unknown keys or bad values, or leaves
+        no policy to screen for (a screening tool with nothing to look for would call every
+        image clean).
+    """
+    table, source, header = _read_table(path)
+    if path is not None and merge:
+        table = merge_tables(_read_table(None)[0], table)
+    cfg = _build(table, source=source, header=header)
+    if not cfg.policies:
+        raise ConfigError(f"{source}: no policy defined (policies = [] or none given): every "
+                          f"image would be reported clean; add a [[policies]] table or leave "
+                          f"'policies' out to keep the shipped ones")
+    return cfg
 
 
 _cached_default: AppConfig | None = None
