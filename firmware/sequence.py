@@ -5,11 +5,13 @@ A `Sequence` is what a microcontroller plays: ``n_steps`` steps, each lasting
 ``levels[i, c]`` (0 = off, ``max_level`` = full on). After the last step it starts over.
 
 Slot semantics follow `lishield_guard.spec`: the pattern is M slots of 1/f_B s; in slot k every
-channel c plays tone ``channels[c][slot_order()[k]]`` as a square wave that starts ON at the slot
-start (ON for duty/f, OFF for (1 - duty)/f, repeating), truncated at the slot end. Every ideal
-edge time is measured from the start of the sequence and rounded to the nearest tick (half up)
-with exact rational arithmetic, so quantisation never accumulates drift and the result does not
-depend on floating-point rounding.
+channel c plays tone ``channels[c][slot_order()[k]]`` as a square wave (ON for duty/f, OFF for
+(1 - duty)/f, repeating), truncated at the slot end. With ``spec.phase == "restart"`` the wave
+starts ON at the slot start; with ``"continuous"`` the tone's timer runs on from the loop start,
+so the wave is ON on [j/f, (j + duty)/f) for every integer j, t measured from the loop start,
+clipped to the slot. Every ideal edge time is measured from the start of the sequence and
+rounded to the nearest tick (half up) with exact rational arithmetic, so quantisation never
+accumulates drift and the result does not depend on floating-point rounding.
 """
 
 from __future__ import annotations
@@ -293,6 +295,7 @@ def compile_spec(
     seed: bytes | str | int | None = None,
     n_patterns: int | None = None,
     max_ratio_error: float = DEFAULT_MAX_RATIO_ERROR,
+    allow=(),
 ) -> Sequence:
     """Compile a barcode spec into a tick-timed LED sequence.
 
@@ -310,6 +313,10 @@ def compile_spec(
         1 otherwise.
     max_ratio_error : float, optional
         Largest accepted relative error of any achieved tone ratio, unitless. Default 1e-3.
+    allow : iterable of str, optional
+        Spec rules compiled with a `lishield_guard.spec.SpecWarning` instead of an error:
+        ``"flicker"`` (f_B / M <= 80 Hz, e.g. the paper's f_B = 200 Hz for M = 3) and
+        ``"switching"`` (f_B > f_1). Default: none; our own lights keep both rules.
 
     Returns
     -------
@@ -338,7 +345,7 @@ def compile_spec(
     >>> seq.period_ticks, seq.channels
     (7500, ('W',))
     """
-    require_valid(spec)
+    require_valid(spec, allow=allow)
     if isinstance(clock_hz, bool) or int(clock_hz) != clock_hz or clock_hz < 1:
         raise FirmwareError(f"need integer clock_hz >= 1, got clock_hz={clock_hz!r}")
     clock_hz = int(clock_hz)
@@ -369,11 +376,12 @@ def compile_spec(
                                 * clock_hz)
     # Draw in (pattern, slot, channel, cycle) order so the level stream is reproducible.
     order = spec.slot_order()
+    slot_events = _slot_events_continuous if spec.phase == "continuous" else _slot_events
     per_channel: list[list[tuple[int, int]]] = [[] for _ in spec.channels]
     for p in range(n_patterns):
         for k in range(spec.n_tones):
             for c, (_, tones) in enumerate(spec.channels):
-                per_channel[c].extend(_slot_events(
+                per_channel[c].extend(slot_events(
                     spec, tones[order[k]], p * spec.n_tones + k, clock_hz=clock_hz,
                     draw=draw))
 
@@ -422,6 +430,35 @@ def _slot_events(spec: BarcodeSpec, tone_hz: float, g: int, *, clock_hz: int,
         j += 1
 
 
+def _slot_events_continuous(spec: BarcodeSpec, tone_hz: float, g: int, *, clock_hz: int,
+                            draw) -> list[tuple[int, int]]:
+    """Like `_slot_events`, but the tone runs on from the loop start (``phase="continuous"``).
+
+    The wave is ON on [j/f, (j + duty)/f) for every integer j (seconds from the loop start);
+    the slot [g/f_B, (g+1)/f_B) plays it clipped: its level at the slot start, then every ideal
+    edge strictly inside the slot.
+    """
+    f_b = Fraction(spec.f_b_hz)
+    duty = Fraction(spec.duty)
+    clock = Fraction(clock_hz)
+    t0 = Fraction(g) / f_b
+    t1 = Fraction(g + 1) / f_b
+    f = Fraction(tone_hz)
+    j = math.floor(t0 * f)  # the cycle running at the slot start
+    on_at_start = t0 * f - j < duty
+    out: list[tuple[int, int]] = [(_round_ticks(t0 * clock), draw() if on_at_start else 0)]
+    while True:
+        t_on = Fraction(j) / f
+        if t_on >= t1:
+            return out
+        if t_on > t0:
+            out.append((_round_ticks(t_on * clock), draw()))
+        t_off = t_on + duty / f
+        if t0 < t_off < t1:
+            out.append((_round_ticks(t_off * clock), 0))
+        j += 1
+
+
 def _run_length(per_channel: list[list[tuple[int, int]]],
                 period_ticks: int) -> tuple[np.ndarray, np.ndarray]:
     """Merge per-channel (tick, level) events into (durations, levels) steps."""
@@ -453,6 +490,44 @@ def _slot_bounds_ticks(spec: BarcodeSpec, clock_hz: int, n_slots: int) -> list[i
     return [_round_ticks(Fraction(g) / f_b * clock_hz) for g in range(n_slots + 1)]
 
 
+def _edge_span_hz(spec: BarcodeSpec, tone_hz: float, g: int, s0: int, s1: int,
+                  rising: np.ndarray, falling: np.ndarray, clock_hz: int) -> float | None:
+    """Achieved frequency of one slot from its first and last genuine edges.
+
+    The ideal rising (phase 0) and falling (phase duty) edges of the tone inside the closed
+    slot are listed with their phase in cycles; those strictly inside must match the played
+    edges one to one (else NaN: an edge was lost to tick rounding), those on a slot bound are
+    timed by the bound's tick. Returns None when the slot holds fewer than two such edges.
+    """
+    f_b = Fraction(spec.f_b_hz)
+    duty = Fraction(spec.duty)
+    f = Fraction(tone_hz)
+    t0, t1 = Fraction(g) / f_b, Fraction(g + 1) / f_b
+    p0 = f * t0 if spec.phase == "continuous" else Fraction(0)
+    p1 = p0 + f * (t1 - t0)
+    ideal: list[tuple[Fraction, int]] = []
+    j = math.floor(p0)
+    while j <= p1:
+        for e, kind in ((Fraction(0), 1), (duty, 0)):
+            if p0 <= j + e <= p1:
+                ideal.append((j + e, kind))
+        j += 1
+    # an ideal edge that rounds onto a slot bound is played by the bound itself
+    ticks = [_round_ticks((t0 + (p - p0) / f) * clock_hz) for p, _ in ideal]
+    inner_ideal = [(p, k) for (p, k), t in zip(ideal, ticks, strict=True) if s0 < t < s1]
+    played = sorted([(int(t), 1) for t in rising[(rising > s0) & (rising < s1)]]
+                    + [(int(t), 0) for t in falling[(falling > s0) & (falling < s1)]])
+    if [k for _, k in played] != [k for _, k in inner_ideal]:
+        return float("nan")
+    pts = [(p, min(max(t, s0), s1)) for (p, _), t in zip(ideal, ticks, strict=True)
+           if not s0 < t < s1]
+    pts += [(p, t) for (p, _), (t, _) in zip(inner_ideal, played, strict=True)]
+    pts.sort()
+    if len(pts) < 2 or pts[-1][1] == pts[0][1]:
+        return None
+    return float(pts[-1][0] - pts[0][0]) * clock_hz / (pts[-1][1] - pts[0][1])
+
+
 def achieved_report(seq: Sequence) -> dict:
     """Frequencies, slot rate and ratio errors that the quantised sequence actually plays.
 
@@ -473,10 +548,14 @@ def achieved_report(seq: Sequence) -> dict:
 
     Notes
     -----
-    In each slot the rising edges of a channel (a level change from 0 to > 0, with the slot
-    start counted as one because every slot starts ON) are collected together with the next
-    slot start. The n = floor(f / f_B) full cycles of tone f span from the slot start to the
-    n-th following rising edge; the achieved frequency is n * clock_hz / span_ticks.
+    With ``phase="restart"`` and f >= f_B, in each slot the rising edges of a channel (a level
+    change from 0 to > 0, with the slot start counted as one because every slot starts ON) are
+    collected together with the next slot start. The n = floor(f / f_B) full cycles of tone f
+    span from the slot start to the n-th following rising edge; the achieved frequency is
+    n * clock_hz / span_ticks. Otherwise (continuous phase, or a slot shorter than a cycle)
+    the slot's first and last edges, rising or falling, whose ideal phases are known, give
+    (phase span in cycles) * clock_hz / span_ticks; slots holding fewer than two edges are
+    skipped.
     """
     spec = seq.spec
     m = spec.n_tones
@@ -490,26 +569,32 @@ def achieved_report(seq: Sequence) -> dict:
         col = seq.levels[:, c].astype(np.int64)
         prev = np.roll(col, 1)
         rising = starts[(col > 0) & (prev == 0)]
+        falling = starts[(col == 0) & (prev > 0)]
         on_at = col[np.searchsorted(starts, np.asarray(bounds[:-1]), side="right") - 1] > 0
         for g in range(n_slots):
             s0, s1 = bounds[g], bounds[g + 1]
             tone = order[g % m]
             f = spec.channels[c][1][tone]
             n_full = int(math.floor(f / f_b * (1 + 1e-9)))
-            inner = rising[(rising > s0) & (rising < s1)].tolist()
-            edges = sorted(set(([s0] if on_at[g] else []) + inner + [s1]))
-            if not on_at[g] or len(edges) <= n_full or n_full < 1:
-                hz = float("nan")
+            if spec.phase == "restart" and n_full >= 1:
+                inner = rising[(rising > s0) & (rising < s1)].tolist()
+                edges = sorted(set(([s0] if on_at[g] else []) + inner + [s1]))
+                if not on_at[g] or len(edges) <= n_full:
+                    hz = float("nan")
+                else:
+                    hz = n_full * seq.clock_hz / (edges[n_full] - edges[0])
             else:
-                hz = n_full * seq.clock_hz / (edges[n_full] - edges[0])
-            per_tone.setdefault((c, tone), []).append(hz)
+                hz = _edge_span_hz(spec, f, g, s0, s1, rising, falling, seq.clock_hz)
+            vals = per_tone.setdefault((c, tone), [])
+            if hz is not None:
+                vals.append(hz)
 
     tones = []
     achieved: dict[tuple[str, float], tuple[float, float]] = {}
     for (c, tone), vals in sorted(per_tone.items()):
         ch = seq.channels[c]
         f = spec.channels[c][1][tone]
-        arr = np.asarray(vals)
+        arr = np.asarray(vals if vals else [float("nan")])
         bad = bool(np.isnan(arr).any())
         lo = float("nan") if bad else float(arr.min())
         hi = float("nan") if bad else float(arr.max())

@@ -6,14 +6,36 @@ The whole pattern repeats every M/f_B seconds. Ratios between tones do not depen
 camera's row rate, so the set of ratios (larger/smaller for every pair) is what a detector
 looks for.
 
-Slot semantics used project-wide (firmware, synth and detector agree on it): each slot restarts
-its tone at the start of an ON half-period, so the pattern is exactly periodic with period M/f_B.
+Slot semantics used project-wide (firmware and synth agree on it): in slot k of a pattern every
+channel plays tone ``slot_order()[k]`` of its ascending tone list, as an on-off square wave of
+duty ``duty``. ``phase`` says where that wave starts:
+
+- ``"restart"`` (default): each slot restarts its tone at the start of an ON half-period;
+- ``"continuous"``: each tone's timer runs on through the slots where it is silent, so at a slot
+  start s (seconds from the loop start) the tone's phase is f_n * s mod 1 (ON while the phase is
+  below ``duty``).
+
+Either way the emitted loop starts over after M/f_B seconds (times ``n_patterns`` in the
+firmware), so the light is exactly periodic.
+
+What the firmware emits versus what a detector may assume
+--------------------------------------------------------
+`check_spec` holds the rules *our firmware* follows for a flicker-free light: f_B <= f_1
+(``switching``) and f_B / M above ~80 Hz (``flicker``, paper Sec. 3.3.1). LEDs built by others
+need not: the paper's own detection experiments (Sec. 7.3) switch three Table 1 tones at
+f_B = 200 Hz (f_B / M = 66.7 Hz). Such specs are representable and compilable: pass
+``allow=("flicker",)`` (and ``"switching"`` for f_B > f_1) to `check_spec`, `require_valid` or
+`firmware.sequence.compile_spec`, and the rule is reported as a warning (a `SpecWarning` is
+issued) instead of an error. A policy names only the ratio sets, M and on-off keying; switching
+rate, phase mode, slot order and the LED's rise and fall times are properties of an emitter,
+not of the policy.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -26,6 +48,7 @@ __all__ = [
     "PRESETS",
     "Ratio",
     "SpecReport",
+    "SpecWarning",
     "Violation",
     "check_spec",
     "get_preset",
@@ -37,6 +60,12 @@ DEFAULT_FLICKER_THRESHOLD_HZ = 80.0  # paper Sec. 3.3.1: f_th ~ 80 Hz
 DEFAULT_MAX_FREQ_HZ = 15_000.0  # paper Sec. 5: Nyquist at the slowest (30 kHz) row rate
 DEFAULT_RATIO_TOL = 0.05  # paper Sec. 7.3: T_b = 0.05 (absolute, unitless)
 DEFAULT_MIN_READOUT_S = 0.010  # DESIGN.md: phones read a frame in roughly 10-35 ms
+ORDER_NAMES = ("cyclic", "random")
+PHASE_MODES = ("restart", "continuous")
+
+
+class SpecWarning(UserWarning):
+    """A spec breaks a rule that the caller allowed (e.g. ``flicker`` at f_B = 200 Hz)."""
 
 
 @dataclass(frozen=True)
@@ -73,10 +102,15 @@ class BarcodeSpec:
         ON fraction of each tone's period, in (0, 1). Default 0.5.
     intensity_levels : int
         K >= 1 ON levels for intensity randomization (paper Sec. 3.3.2); 1 disables it.
-    order : {"cyclic", "random"}
-        Slot order: ascending tones, or a permutation drawn from ``order_seed``.
+    order : {"cyclic", "random"} or tuple of int
+        Slot order: ascending tones (``"cyclic"``), a permutation drawn from ``order_seed``
+        (``"random"``), or an explicit permutation of ``range(M)``: tone indices into each
+        channel's ascending tone list, one per slot, e.g. ``(2, 1, 0)`` for descending.
     order_seed : int or None
         Seed of the random slot order; required when ``order="random"``.
+    phase : {"restart", "continuous"}
+        Tone phase at a slot start: restart each tone ON at the slot start (default), or let
+        each tone's timer run on from the loop start (phase f_n * t mod 1 at slot start t).
     """
 
     name: str
@@ -84,9 +118,10 @@ class BarcodeSpec:
     switching_hz: float | None = None
     duty: float = 0.5
     intensity_levels: int = 1
-    order: Literal["cyclic", "random"] = "cyclic"
+    order: Literal["cyclic", "random"] | tuple[int, ...] = "cyclic"
     order_seed: int | None = None
     description: str = field(default="", compare=False)
+    phase: Literal["restart", "continuous"] = "restart"
 
     def __post_init__(self) -> None:
         chans = tuple((str(c), tuple(sorted(float(f) for f in fs))) for c, fs in self.channels)
@@ -118,11 +153,25 @@ class BarcodeSpec:
         if int(self.intensity_levels) != self.intensity_levels or self.intensity_levels < 1:
             raise SpecError(f"need intensity_levels >= 1, got {self.intensity_levels!r}",
                             rule="structure")
-        if self.order not in ("cyclic", "random"):
-            raise SpecError(f"order must be 'cyclic' or 'random', got {self.order!r}",
-                            rule="structure")
+        if isinstance(self.order, list | tuple):
+            try:
+                perm = tuple(int(i) for i in self.order)
+            except (TypeError, ValueError):
+                perm = None
+            if perm is None or any(isinstance(i, bool) or int(i) != i for i in self.order) or \
+                    sorted(perm) != list(range(len(chans[0][1]))):
+                raise SpecError(f"an explicit order must be a permutation of range(M)="
+                                f"range({len(chans[0][1])}), got order={self.order!r}",
+                                rule="structure")
+            object.__setattr__(self, "order", perm)
+        elif self.order not in ORDER_NAMES:
+            raise SpecError(f"order must be 'cyclic', 'random' or a permutation of tone "
+                            f"indices, got {self.order!r}", rule="structure")
         if self.order == "random" and self.order_seed is None:
             raise SpecError("order='random' needs order_seed", rule="structure")
+        if self.phase not in PHASE_MODES:
+            raise SpecError(f"phase must be 'restart' or 'continuous', got {self.phase!r}",
+                            rule="structure")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -185,6 +234,8 @@ class BarcodeSpec:
     def slot_order(self) -> tuple[int, ...]:
         """Tone index (into each channel's ascending list) played in each slot of one pattern."""
         m = self.n_tones
+        if isinstance(self.order, tuple):
+            return self.order
         if self.order == "cyclic":
             return tuple(range(m))
         rng = np.random.default_rng(self.order_seed)
@@ -219,7 +270,9 @@ class BarcodeSpec:
         """JSON/TOML-ready description."""
         d: dict = {"name": self.name, "channels": {c: list(fs) for c, fs in self.channels},
                    "duty": self.duty, "intensity_levels": self.intensity_levels,
-                   "order": self.order}
+                   "order": list(self.order) if isinstance(self.order, tuple) else self.order}
+        if self.phase != "restart":
+            d["phase"] = self.phase
         if self.switching_hz is not None:
             d["switching_hz"] = self.switching_hz
         if self.order_seed is not None:
@@ -232,7 +285,7 @@ class BarcodeSpec:
     def from_dict(cls, d: dict) -> BarcodeSpec:
         """Inverse of `to_dict`; raises SpecError naming a missing or unknown key."""
         known = {"name", "channels", "switching_hz", "duty", "intensity_levels", "order",
-                 "order_seed", "description"}
+                 "order_seed", "description", "phase"}
         unknown = set(d) - known
         if unknown:
             raise SpecError(f"unknown spec keys {sorted(unknown)!r}", rule="structure")
@@ -242,6 +295,8 @@ class BarcodeSpec:
         if not isinstance(chans, dict):
             raise SpecError("'channels' must map channel name to a list of Hz", rule="structure")
         kw = {k: d[k] for k in known - {"name", "channels"} if k in d}
+        if isinstance(kw.get("order"), list):
+            kw["order"] = tuple(kw["order"])
         return cls(name=str(d["name"]), channels=tuple((c, tuple(fs)) for c, fs in chans.items()),
                    **kw)
 
@@ -249,11 +304,15 @@ class BarcodeSpec:
 # ---------------------------------------------------------------------- validation
 @dataclass(frozen=True)
 class Violation:
-    """One validation rule a spec breaks (``severity`` "error") or should note ("warning")."""
+    """One validation rule a spec breaks (``severity`` "error") or should note ("warning").
+
+    ``allowed`` is True for an error-level rule demoted to a warning by ``check_spec(allow=...)``.
+    """
 
     rule: str
     message: str
     severity: Literal["error", "warning"] = "error"
+    allowed: bool = False
 
 
 @dataclass(frozen=True)
@@ -279,6 +338,7 @@ def check_spec(
     flicker_threshold_hz: float = DEFAULT_FLICKER_THRESHOLD_HZ,
     max_freq_hz: float = DEFAULT_MAX_FREQ_HZ,
     min_readout_s: float = DEFAULT_MIN_READOUT_S,
+    allow=(),
 ) -> SpecReport:
     """Check a spec against the paper's rules and report every one it breaks.
 
@@ -292,7 +352,14 @@ def check_spec(
       (absolute, unitless; the paper's T_b window) so a measured ratio names one of them.
     - ``readout`` (warning): the pattern period M / f_B fits in ``min_readout_s`` seconds, so even
       a fast-readout frame holds every tone.
+
+    ``switching`` and ``flicker`` are the rules of a flicker-free emitter (ours); an LED built
+    by others may break them (the paper's Sec. 7.3 switches at f_B = 200 Hz, f_B / M = 66.7 Hz).
+    Name them in ``allow`` (iterable of rule names) to report them with severity "warning".
+    Rules that make a spec unplayable or undetectable (``max_freq``, ``distinct_freqs``) cannot
+    be allowed.
     """
+    allow = _check_allow(allow)
     out: list[Violation] = []
     if spec.f_b_hz > spec.f1_hz * (1 + 1e-12):
         out.append(Violation("switching", f"need f_B <= f_1, got f_B={spec.f_b_hz:g} Hz > "
@@ -322,15 +389,38 @@ def check_spec(
                                         f"ms exceeds a fast frame readout of "
                                         f"{min_readout_s * 1e3:g} ms; such a photo holds only "
                                         f"part of the cycle and may miss a tone", "warning"))
+    out = [Violation(v.rule, v.message + " (allowed)", "warning", allowed=True)
+           if v.rule in allow and v.severity == "error" else v for v in out]
     return SpecReport(spec, tuple(out))
 
 
+ALLOWABLE_RULES = ("switching", "flicker", "ratios_distinct")
+
+
+def _check_allow(allow) -> frozenset[str]:
+    if isinstance(allow, str):
+        allow = (allow,)
+    allow = frozenset(str(a) for a in allow)
+    bad = sorted(allow - set(ALLOWABLE_RULES))
+    if bad:
+        raise SpecError(f"allow names rules {bad!r} that cannot be allowed; allowable: "
+                        f"{', '.join(ALLOWABLE_RULES)}", rule="allow")
+    return allow
+
+
 def require_valid(spec: BarcodeSpec, *, rules=("switching", "flicker", "max_freq",
-                                               "distinct_freqs"), **kw) -> BarcodeSpec:
-    """Raise SpecError for the first broken rule among ``rules``; return the spec otherwise."""
-    for v in check_spec(spec, **kw).violations:
+                                               "distinct_freqs"), allow=(), **kw) -> BarcodeSpec:
+    """Raise SpecError for the first broken rule among ``rules``; return the spec otherwise.
+
+    A broken rule named in ``allow`` (see `check_spec`) does not raise: it issues a
+    `SpecWarning` instead, e.g. ``require_valid(spec_200hz, allow=("flicker",))``.
+    """
+    for v in check_spec(spec, allow=allow, **kw).violations:
         if v.rule in rules and v.severity == "error":
             raise SpecError(v.message, rule=v.rule)
+        if v.rule in rules and v.allowed:
+            warnings.warn(f"spec {spec.name!r} [{v.rule}] {v.message}", SpecWarning,
+                          stacklevel=2)
     return spec
 
 

@@ -228,14 +228,29 @@ class SequenceLight:
         Intensity of a unit level (> 0). Default 1.0.
     phase_s : float
         Time of the sequence start, in seconds.
+    rise_s : float
+        LED rise and fall time in seconds, >= 0 and shorter than the loop. Default 0 (ideal
+        steps). The LED's output is the driven waveform averaged over the preceding ``rise_s``
+        seconds (a causal box filter): every step becomes a linear ramp lasting ``rise_s``.
+        Real LEDs and drivers take up to ~5% of the shortest half-period.
+
+    Notes
+    -----
+    With F the exact cumulative integral of the driven (step) waveform and G its integral
+    (piecewise quadratic, exact), the output's cumulative integral is
+    ``Y(t) = (G(t) - G(t - rise_s)) / rise_s - (G(0) - G(-rise_s)) / rise_s``. G is evaluated
+    as ``m t^2 / 2 + floor(t / P) * Gp + Gr(t mod P)`` (m: mean level, P: loop period), so
+    the differences that matter never subtract large numbers.
     """
 
     sequence: object
     scale: float = 1.0
     phase_s: float = 0.0
+    rise_s: float = 0.0
     _starts_s: np.ndarray = field(init=False, repr=False, compare=False)
     _levels: np.ndarray = field(init=False, repr=False, compare=False)
     _cum: np.ndarray = field(init=False, repr=False, compare=False)
+    _cum2: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.scale) and self.scale > 0):
@@ -244,9 +259,20 @@ class SequenceLight:
         levels = np.asarray(self.sequence.levels_unit(), dtype=np.float64) * self.scale
         cum = np.zeros((starts.size, levels.shape[1]))
         np.cumsum(levels * np.diff(starts)[:, None], axis=0, out=cum[1:])
+        if not (math.isfinite(self.rise_s) and 0.0 <= self.rise_s < starts[-1]):
+            raise ConfigError(f"need 0 <= rise_s < the loop period {starts[-1]:.6g} s, got "
+                              f"rise_s={self.rise_s!r}")
+        # Integral of the detrended cumulative F(u) - m u over [0, starts[k]] (exact).
+        d = np.diff(starts)[:, None]
+        mean = cum[-1] / starts[-1]
+        seg = cum[:-1] * d + levels * d**2 / 2 - mean * (starts[1:, None]**2
+                                                         - starts[:-1, None]**2) / 2
+        cum2 = np.zeros_like(cum)
+        np.cumsum(seg, axis=0, out=cum2[1:])
         object.__setattr__(self, "_starts_s", starts)
         object.__setattr__(self, "_levels", levels)
         object.__setattr__(self, "_cum", cum)
+        object.__setattr__(self, "_cum2", cum2)
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -265,28 +291,55 @@ class SequenceLight:
     def intensity(self, t_s) -> np.ndarray:
         """Instantaneous intensity per channel (for plots only), ``t_s.shape + (n_ch,)``."""
         t = _as_time(t_s) - self.phase_s
+        if self.rise_s > 0:
+            return (self._prim(t) - self._prim(t - self.rise_s)) / self.rise_s
         r = np.mod(t, self.period_s)
         k = np.clip(np.searchsorted(self._starts_s, r, side="right") - 1, 0,
                     self._levels.shape[0] - 1)
         return self._levels[k]
 
+    def _split(self, u: np.ndarray):
+        period = self.period_s
+        n = np.floor(u / period)
+        r = u - n * period
+        k = np.clip(np.searchsorted(self._starts_s, r, side="right") - 1, 0,
+                    self._levels.shape[0] - 1)
+        return n, r, k
+
+    def _prim(self, u: np.ndarray) -> np.ndarray:
+        """Exact integral of the driven (step) waveform from sequence time 0 to ``u``."""
+        n, r, k = self._split(u)
+        return (n[..., None] * self._cum[-1] + self._cum[k]
+                + self._levels[k] * (r - self._starts_s[k])[..., None])
+
+    def _prim2_detrended(self, u: np.ndarray) -> np.ndarray:
+        """Exact integral of ``_prim(v) - m v`` from 0 to ``u`` (m: mean level)."""
+        n, r, k = self._split(u)
+        s0 = self._starts_s[k]
+        tau = (r - s0)[..., None]
+        mean = self._cum[-1] / self.period_s
+        within = (self._cum2[k] + self._cum[k] * tau + self._levels[k] * tau**2 / 2
+                  - mean * ((r**2 - s0**2) / 2)[..., None])
+        return n[..., None] * self._cum2[-1] + within
+
+    def _smoothed(self, u: np.ndarray) -> np.ndarray:
+        """``(G(u) - G(u - rise_s)) / rise_s``, G the double integral of the driven wave."""
+        rho = self.rise_s
+        mean = self._cum[-1] / self.period_s
+        trend = (u - rho / 2)[..., None] * mean
+        return trend + (self._prim2_detrended(u) - self._prim2_detrended(u - rho)) / rho
+
     def cumulative(self, t_s) -> np.ndarray:
         """Exact integral from 0 to ``t_s`` (cumsum over steps plus whole periods).
 
+        With ``rise_s > 0`` it integrates the ramped output exactly (see Notes of the class).
         Returns an array of shape ``t_s.shape + (n_channels,)``.
         """
         t = _as_time(t_s)
-        period = self.period_s
-
-        def prim(u):
-            n = np.floor(u / period)
-            r = u - n * period
-            k = np.clip(np.searchsorted(self._starts_s, r, side="right") - 1, 0,
-                        self._levels.shape[0] - 1)
-            return (n[..., None] * self._cum[-1] + self._cum[k]
-                    + self._levels[k] * (r - self._starts_s[k])[..., None])
-
-        return prim(t - self.phase_s) - prim(np.asarray(-self.phase_s, dtype=np.float64))
+        u0 = np.asarray(-self.phase_s, dtype=np.float64)
+        if self.rise_s > 0:
+            return self._smoothed(t - self.phase_s) - self._smoothed(u0)
+        return self._prim(t - self.phase_s) - self._prim(u0)
 
 
 def row_means(light: LightSource, start_s, exposure_s: float) -> np.ndarray:

@@ -87,6 +87,11 @@ def capture(
     size: str = typer.Option("1080p", "--size", help="1080p, 720p, 8mp, 12mp or WxH."),
     switching_hz: float | None = typer.Option(None, "--switching-hz",
                                               help="Override the preset's switching rate f_B."),
+    phase: str = typer.Option("restart", "--phase",
+                              help="Tone phase at a slot start: restart or continuous."),
+    order: str | None = typer.Option(None, "--order",
+                                     help="Slot order: cyclic, or tone indices like 2,1,0."),
+    rise_s: float = typer.Option(0.0, "--rise-s", help="LED rise/fall time in seconds."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Disable shot and read noise."),
     seed: int = typer.Option(0, "--seed", help="Random seed (frame start and noise)."),
     plot: Path | None = typer.Option(None, "--plot",
@@ -101,7 +106,7 @@ def capture(
     from lishield_guard.camera import CameraModel
     from lishield_guard.spec import get_preset
     from synth.camera import auto_exposure_s, encode_jpeg, postprocess, simulate_frame
-    from synth.dataset import LED_CLOCK_HZ, parse_size
+    from synth.dataset import EMITTER_ALLOW, LED_CLOCK_HZ, parse_size
     from synth.light import SequenceLight, coverage_map
     from synth.scene import load_scene
 
@@ -114,10 +119,21 @@ def capture(
     if not row_rate_hz > 0:
         raise _fail(f"--row-rate-hz must be > 0, got {row_rate_hz}")
     try:
+        if order is not None and order not in ("cyclic", "random"):
+            try:
+                [int(i) for i in order.split(",") if i.strip()]
+            except ValueError:
+                raise _fail(f"--order must be cyclic or comma-separated tone indices, "
+                            f"got {order!r}") from None
         spec = get_preset(preset)
         if switching_hz is not None:
             spec = dataclasses.replace(spec, switching_hz=switching_hz)
-        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ))
+        spec = dataclasses.replace(spec, phase=phase)
+        if order is not None:
+            spec = dataclasses.replace(spec, order=order if order in ("cyclic", "random") else
+                                       tuple(int(i) for i in order.split(",") if i.strip()))
+        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW),
+                              rise_s=rise_s)
         n_rows, n_cols = parse_size(size)
         rng = np.random.default_rng(seed)
         refl = load_scene(scene, n_rows, n_cols)
@@ -144,7 +160,8 @@ def capture(
             capture_plot(plot, light=light, camera=camera, frame=frame, start_s=start_s)
     except OSError as exc:
         raise _fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
-    typer.echo(f"{output} preset={spec.name} f_B={spec.f_b_hz:g}Hz exposure_s={t_e:.6g} "
+    typer.echo(f"{output} preset={spec.name} f_B={spec.f_b_hz:g}Hz phase={spec.phase} "
+               f"order={','.join(map(str, spec.slot_order()))} exposure_s={t_e:.6g} "
                f"row_rate_hz={row_rate_hz:g} size={img.shape[1]}x{img.shape[0]}", err=True)
 
 

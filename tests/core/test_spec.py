@@ -15,6 +15,7 @@ from lishield_guard.errors import SpecError
 from lishield_guard.spec import (
     PRESETS,
     BarcodeSpec,
+    SpecWarning,
     check_spec,
     get_preset,
     require_valid,
@@ -296,3 +297,72 @@ def test_cli_spec_show_toml_file_and_errors(tmp_path):
     broken.write_text("name = \n")
     res = runner.invoke(app, ["spec", "show", str(broken)])
     assert res.exit_code == 2 and "not valid TOML" in res.stderr
+
+
+# ---------------------------------------------------------------------- emitters built by others
+PAPER_200 = BarcodeSpec.mono("p200", [400, 600, 800], switching_hz=200)  # paper Sec. 7.3
+
+
+def test_phase_mode_round_trips_and_is_validated():
+    cont = BarcodeSpec.mono("c", [400, 600, 800], phase="continuous")
+    assert cont.phase == "continuous" and GOOD.phase == "restart"
+    assert cont.to_dict()["phase"] == "continuous" and "phase" not in GOOD.to_dict()
+    assert BarcodeSpec.from_dict(cont.to_dict()) == cont
+    assert cont != GOOD
+    with pytest.raises(SpecError, match="phase") as info:
+        BarcodeSpec.mono("x", [400, 600, 800], phase="running")
+    assert info.value.rule == "structure"
+
+
+@pytest.mark.parametrize("order", [(2, 1, 0), (0, 2, 1), [1, 2, 0], (0, 1, 2)])
+def test_explicit_order_is_the_slot_order(order):
+    spec = BarcodeSpec.mono("o", [800, 400, 600], order=order)
+    assert spec.order == tuple(order) and spec.slot_order() == tuple(order)
+    assert spec.to_dict()["order"] == list(order)
+    assert BarcodeSpec.from_dict(spec.to_dict()) == spec
+    hash(spec)  # still a frozen, hashable value
+
+
+@pytest.mark.parametrize("order", [(0, 1), (0, 1, 1), (1, 2, 3), (0.5, 1, 2), ("0", "1", "2"),
+                                   (True, False, 2), ()])
+def test_explicit_order_must_be_a_permutation(order):
+    with pytest.raises(SpecError, match="permutation") as info:
+        BarcodeSpec.mono("o", [400, 600, 800], order=order)
+    assert info.value.rule == "structure"
+
+
+def test_toml_spec_with_phase_and_order(tmp_path):
+    path = tmp_path / "led.toml"
+    path.write_text('name = "led"\nswitching_hz = 200\nphase = "continuous"\n'
+                    'order = [2, 0, 1]\n[channels]\nW = [400, 600, 800]\n')
+    res = runner.invoke(app, ["spec", "show", str(path), "--json"])
+    data = json.loads(res.stdout)
+    assert data["slot_order"] == [2, 0, 1]
+    # f_B / M = 66.7 Hz breaks our own flicker rule: reported, never silently dropped
+    assert {r["rule"]: r["status"] for r in data["rules"]}["flicker"] == "fail"
+
+
+def test_paper_200hz_is_a_warning_when_allowed():
+    assert not check_spec(PAPER_200).ok
+    with pytest.raises(SpecError, match="flicker"):
+        require_valid(PAPER_200)
+    report = check_spec(PAPER_200, allow=("flicker",))
+    assert report.ok
+    v = [v for v in report.violations if v.rule == "flicker"][0]
+    assert v.severity == "warning" and v.allowed and "66.7 Hz" in v.message
+    with pytest.warns(SpecWarning, match="flicker"):
+        assert require_valid(PAPER_200, allow="flicker") is PAPER_200
+    # f_B beyond f_1 needs "switching" too; unplayable rules cannot be allowed
+    fast = BarcodeSpec.mono("fast", [400, 600, 800], switching_hz=480)
+    with pytest.raises(SpecError, match="switching"):
+        require_valid(fast, allow=("flicker",))
+    with pytest.warns(SpecWarning, match="switching"):
+        require_valid(fast, allow=("flicker", "switching"))
+    with pytest.raises(SpecError, match="cannot be allowed"):
+        check_spec(GOOD, allow=("max_freq",))
+    # a spec that breaks nothing issues no warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        require_valid(GOOD, allow=("flicker", "switching"))

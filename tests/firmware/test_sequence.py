@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from firmware.sequence import Sequence, achieved_report, compile_spec
 from lishield_guard.errors import FirmwareError, SpecError
-from lishield_guard.spec import PRESETS, BarcodeSpec
+from lishield_guard.spec import PRESETS, BarcodeSpec, SpecWarning
 
 RANDOMIZED = dataclasses.replace(PRESETS["table2-rgb"], name="rgb-k4", intensity_levels=4)
 SEED = b"venue-secret-7f3a"
@@ -165,6 +165,116 @@ def test_sequence_matches_the_ideal_waveform_within_one_tick(f1, steps, duty, cl
     got = seq.levels[np.searchsorted(starts, t_ticks, side="right") - 1, 0] > 0
     # distance (in ticks) from the nearest ideal edge
     frac = phase % 1.0
+    dist_on = np.minimum(frac, 1 - frac) / f * clock_hz
+    dist_off = np.abs(frac - duty) / f * clock_hz
+    dist_slot = np.abs(t_s * spec.f_b_hz - np.round(t_s * spec.f_b_hz)) / spec.f_b_hz * clock_hz
+    near = np.minimum(np.minimum(dist_on, dist_off), dist_slot) <= 1.0
+    assert np.array_equal(got[~near], ideal[~near])
+
+
+# ---------------------------------------------------------------------- emitters built by others
+ALLOW = ("flicker", "switching")
+
+
+def _ideal_levels(spec: BarcodeSpec, t_s: np.ndarray, channel: int = 0) -> np.ndarray:
+    """The ideal ON/OFF of a channel at times t_s (seconds from the loop start)."""
+    g = np.floor(t_s * spec.f_b_hz).astype(int)
+    tones = np.asarray(spec.channels[channel][1])[list(spec.slot_order())]
+    f = tones[g % spec.n_tones]
+    if spec.phase == "continuous":
+        phase = t_s * f
+    else:
+        phase = (t_s - g / spec.f_b_hz) * f
+    return (phase % 1.0) < spec.duty
+
+
+def test_continuous_phase_edges_hand_computed():
+    # table1-seq1 at f_B = 300 Hz (slots of 3333.33 us), continuous: 400 Hz runs 0-3333.33
+    # (ON 0-1250, 2500-3333.33); 600 Hz from 3333.33 (phase 2 -> ON) OFF at 4166.67, ON 5000,
+    # OFF 5833.33; 800 Hz from 6666.67 (phase 5.333 -> ON), OFF 6875, ON 7500, OFF 8125,
+    # ON 8750, OFF 9375; loop at 10000. Restart would start 800 Hz ON for 625 us.
+    spec = BarcodeSpec.mono("c", [400, 600, 800], switching_hz=300, phase="continuous")
+    seq = compile_spec(spec)
+    assert seq.edges() == [(0, 0, 1), (1250, 0, 0), (2500, 0, 1), (4167, 0, 0), (5000, 0, 1),
+                           (5833, 0, 0), (6667, 0, 1), (6875, 0, 0), (7500, 0, 1), (8125, 0, 0),
+                           (8750, 0, 1), (9375, 0, 0)]
+    rep = achieved_report(seq)
+    assert rep["worst_ratio_error"] <= 1e-3
+    for tone in rep["tones"]:
+        assert tone["achieved_hz"] == pytest.approx(tone["spec_hz"], rel=1e-3)
+    restart = compile_spec(dataclasses.replace(spec, phase="restart"))
+    assert (6667, 0, 1) in restart.edges() and (7292, 0, 0) in restart.edges()
+
+
+@pytest.mark.parametrize("order", [(2, 1, 0), (0, 2, 1), (1, 0, 2)])
+def test_explicit_order_plays_the_slots_in_that_order(order):
+    spec = dataclasses.replace(PRESETS["table1-seq1"], order=order)
+    seq = compile_spec(spec)
+    # each slot's number of rising edges (slot start included) names its tone: 1, 2 or 2 (600
+    # Hz fits 1.5 cycles in 2.5 ms -> 2 ON periods), so compare with the ideal wave instead
+    t_ticks = np.arange(seq.period_ticks) + 0.5
+    got = seq.levels[np.searchsorted(seq.step_starts_ticks(), t_ticks, side="right") - 1, 0] > 0
+    ideal = _ideal_levels(spec, t_ticks / seq.clock_hz)
+    assert np.mean(got != ideal) < 1e-3
+    rep = achieved_report(seq)
+    assert rep["worst_ratio_error"] <= 1e-3
+
+
+def test_paper_200hz_compiles_with_a_warning():
+    spec = dataclasses.replace(PRESETS["table1-seq3"], switching_hz=200.0)
+    with pytest.raises(SpecError, match="flicker"):
+        compile_spec(spec)
+    with pytest.warns(SpecWarning, match="flicker"):
+        seq = compile_spec(spec, allow=ALLOW)
+    assert seq.period_ticks == 15_000  # 3 / 200 Hz at 1 MHz
+    rep = achieved_report(seq)
+    assert rep["worst_ratio_error"] == 0.0  # 200 Hz slots hold whole cycles of 1600-2000 Hz
+    assert rep["slot_rate_hz"] == pytest.approx(200.0)
+
+
+@pytest.mark.parametrize("phase", ["restart", "continuous"])
+@pytest.mark.parametrize("f_b", [170.0, 231.7, 480.0])
+def test_rates_beyond_our_rules_compile_and_report(phase, f_b):
+    spec = dataclasses.replace(PRESETS["table2-rgb"], switching_hz=f_b, phase=phase,
+                               order=(2, 0, 1))
+    with pytest.warns(SpecWarning):
+        seq = compile_spec(spec, clock_hz=16_000_000, allow=ALLOW)
+    rep = achieved_report(seq)
+    assert rep["worst_ratio_error"] <= 1e-3
+    assert all(np.isfinite(t["achieved_hz"]) for t in rep["tones"])
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    f1=st.integers(200, 800),
+    steps=st.lists(st.floats(1.05, 3.0), min_size=1, max_size=3),
+    duty=st.floats(0.2, 0.8),
+    f_b_frac=st.floats(0.4, 1.2),
+    clock_hz=st.sampled_from([1_000_000, 48_000_000 // 7]),
+    perm_seed=st.integers(0, 100),
+)
+def test_continuous_sequence_matches_the_ideal_waveform_within_one_tick(
+        f1, steps, duty, f_b_frac, clock_hz, perm_seed):
+    freqs = [float(f1)]
+    for s in steps:
+        freqs.append(freqs[-1] * s)
+    assume(freqs[-1] <= 15_000)
+    order = tuple(int(i) for i in np.random.default_rng(perm_seed).permutation(len(freqs)))
+    spec = BarcodeSpec.mono("h", freqs, duty=duty, switching_hz=round(f1 * f_b_frac, 3),
+                            phase="continuous", order=order)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SpecWarning)
+        seq = compile_spec(spec, clock_hz=clock_hz, max_ratio_error=1.0, allow=ALLOW)
+    t_ticks = np.arange(seq.period_ticks) + 0.5
+    t_s = t_ticks / clock_hz
+    got = seq.levels[np.searchsorted(seq.step_starts_ticks(), t_ticks, side="right") - 1, 0] > 0
+    ideal = _ideal_levels(spec, t_s)
+    # distance (in ticks) from the nearest ideal edge or slot bound
+    g = np.floor(t_s * spec.f_b_hz).astype(int)
+    f = np.asarray(spec.channels[0][1])[list(order)][g % len(freqs)]
+    frac = (t_s * f) % 1.0
     dist_on = np.minimum(frac, 1 - frac) / f * clock_hz
     dist_off = np.abs(frac - duty) / f * clock_hz
     dist_slot = np.abs(t_s * spec.f_b_hz - np.round(t_s * spec.f_b_hz)) / spec.f_b_hz * clock_hz

@@ -126,3 +126,63 @@ def test_bad_inputs():
         coverage_map(10, 10, fraction=0.0)
     with pytest.raises(ConfigError, match="exposure_s"):
         row_means(SteadyLight(), np.zeros(3), 0.0)
+
+
+# ---------------------------------------------------------------------- finite rise and fall
+def _ramped_sequence(rise_frac: float = 0.05):
+    import dataclasses
+    import warnings
+
+    spec = dataclasses.replace(PRESETS["table2-rgb"], switching_hz=200.0, phase="continuous",
+                               order=(2, 0, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seq = compile_spec(spec, clock_hz=16_000_000, allow=("flicker",))
+    rise_s = rise_frac * 0.5 / spec.all_freqs_hz[-1]  # of the shortest half-period
+    return seq, rise_s
+
+
+@pytest.mark.parametrize("rise_frac", [0.01, 0.05])
+def test_rise_time_row_means_match_brute_force(rise_frac):
+    seq, rise_s = _ramped_sequence(rise_frac)
+    ideal = SequenceLight(seq, phase_s=0.0123)
+    ramped = SequenceLight(seq, phase_s=0.0123, rise_s=rise_s)
+    exposure_s = 1 / 20_000
+    starts = np.random.default_rng(3).uniform(0.0, 2.0, 6)
+    got = row_means(ramped, starts, exposure_s)
+    for i, t0 in enumerate(starts):
+        # brute force: output = driven wave averaged over the preceding rise_s, then a dense
+        # trapezoid over the exposure (the output is piecewise linear, so this converges fast)
+        t = np.linspace(t0, t0 + exposure_s, 40_001)
+        out = (ideal.cumulative(t) - ideal.cumulative(t - rise_s)) / rise_s
+        want = np.trapezoid(out, t, axis=0) / exposure_s
+        np.testing.assert_allclose(got[i], want, atol=1e-7)
+    # the ramp visibly changes short exposures, and never the time average
+    assert np.abs(got - row_means(ideal, starts, exposure_s)).max() > 1e-3
+    np.testing.assert_allclose(ramped.mean_level(), ideal.mean_level(), rtol=1e-12)
+    period = ramped.period_s
+    np.testing.assert_allclose(ramped.cumulative(np.array([1000 * period]))[0],
+                               1000 * period * ideal.mean_level(), rtol=1e-9)
+
+
+def test_rise_time_intensity_is_a_linear_ramp():
+    seq, rise_s = _ramped_sequence(0.05)
+    ramped = SequenceLight(seq, rise_s=rise_s)
+    edge = seq.step_starts_s()[1]  # a change of some channel
+    t = edge + np.array([-0.1, 0.25, 0.5, 0.75, 1.1]) * rise_s
+    lv = ramped.intensity(t)
+    before, after = SequenceLight(seq).intensity(t[[0, -1]])
+    changed = before != after
+    assert changed.any()
+    frac = (lv[1:4] - before) / np.where(changed, after - before, 1.0)
+    np.testing.assert_allclose(frac[:, changed], np.array([[0.25], [0.5], [0.75]])
+                               * np.ones((1, int(changed.sum()))), atol=1e-6)
+    np.testing.assert_allclose(lv[[0, -1]], np.stack([before, after]), atol=1e-9)
+    assert SequenceLight(seq, rise_s=0.0).rise_s == 0.0
+
+
+@pytest.mark.parametrize("rise_s", [-1e-6, float("nan"), 1.0])
+def test_bad_rise_time(rise_s):
+    seq, _ = _ramped_sequence()
+    with pytest.raises(ConfigError, match="rise_s"):
+        SequenceLight(seq, rise_s=rise_s)
