@@ -9,19 +9,31 @@ The default mix (``MIXES["default"]``)
 Positives (label 1, kind ``"barcode"``):
 
 - preset: 50% monochrome (``table1-seq1/2/3`` uniformly), 50% RGB (``table2-rgb``);
-- switching rate f_B uniform in [200 Hz, f_1] (paper Sec. 7.3 used 200 Hz), raised where needed
-  to just above 80 Hz * M so the spec passes the firmware's flicker rule (f_B / M > 80 Hz; for
-  M = 3 the lower bound becomes 240.24 Hz);
-- exposure log-uniform in [1/8000, 1/500] s; 20% manual-exposure attack: t_e = k / f with f one
-  random tone of one channel and k uniform among 1..3 keeping t_e within [1/8000, 1/200] s;
+- the emitter (`sample_emitter`; DESIGN.md, "What the detector may assume about an emitter"),
+  an LED built by others, so our firmware's flicker and switching rules are allowed (compiled
+  with a filtered `SpecWarning`): switching rate f_B in band ``"200"`` (f_B = 200 Hz, paper
+  Sec. 7.3; 31%), ``"f1"`` (f_B = f_1, Sec. 3.3.1; 31%), ``"between"`` (log-uniform in
+  (200 Hz, f_1); 31%) or ``"beyond"`` (7%: half log-uniform in [170, 200) Hz, half
+  f_1 * uniform(1, 1.2]); tone phase at a slot start ``restart`` or ``continuous`` (50/50);
+  slot order ascending, descending or another fixed permutation (1/3 each); LED rise/fall
+  time uniform in 0-5% of the shortest half-period. Manifest fields ``switching_hz``,
+  ``f_b_band``, ``phase_mode``, ``slot_order``, ``slot_order_kind``, ``rise_frac``,
+  ``rise_s``; ``nominal`` is true for no attack, full coverage, ambient <= 1 and
+  t_e < half a slot;
+- exposure log-uniform in [1/8000, 1/30] s (DESIGN.md, "Camera settings in the wild"); 20%
+  manual-exposure attack: t_e = k / f with f one random tone of one channel and k uniform
+  among 1..3 keeping t_e within [1/8000, 1/200] s;
 - ambient ratio (steady white light / LED average): 30% zero, else log-uniform in [0.1, 10];
 - coverage: 25% partial (lit fraction uniform 0.3-0.8, raised-cosine radial falloff centred
   uniformly in the frame), else the LED lights the whole frame;
 - row rate uniform in 30-120 kHz; random frame start; auto gain; shot and read noise;
 - JPEG quality uniform 60-95, chroma 4:2:0 (80%) or 4:4:4;
-- 40% downscaled by a factor uniform in [1.25, 3] (``cv2.INTER_AREA``);
+- 50% downscaled (``cv2.INTER_AREA``) to a long side uniform in 1080-2048 px (capped at the
+  sensor's long side);
 - 20% rotated by 90 or 270 degrees, half as an EXIF orientation tag only, half baked into pixels;
-- scene: a random scikit-image photo with a random crop (80%) or a procedural texture (20%).
+- scene: a procedural texture (20%) or a photo with a random crop: a real photograph of the
+  ``out/photos`` corpus (80% of photos, through the `real_photo_scenes` hook, when
+  `synth.scene` lists that corpus) or a scikit-image photo.
 
 Negatives (label 0): 30% steady light (kind ``"steady"``), 25% mains flicker (``"mains"``:
 100 or 120 Hz, depth uniform 0.05-1), 25% PWM dimming (``"pwm"``: frequency log-uniform
@@ -37,9 +49,11 @@ rotation). Any field can be overridden with `Mix.with_overrides` (CLI ``--set ke
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -53,20 +67,25 @@ from lishield_guard.spec import get_preset
 from lishield_guard.threads import one_thread_per_worker
 
 __all__ = [
+    "EMITTER_ALLOW",
+    "EMITTER_FIELDS",
     "MIXES",
     "SIZES",
     "Mix",
     "demo_images",
+    "f_b_band",
     "item_seed",
     "parse_size",
+    "real_photo_scenes",
     "render_item",
+    "sample_emitter",
     "sample_item",
+    "slot_order_kind",
     "write_dataset",
 ]
 
 SIZES = {"1080p": (1080, 1920), "720p": (720, 1280), "12mp": (3024, 4032),
          "8mp": (2448, 3264)}  # name -> (n_rows, n_cols); sensor rows run down the height
-FLICKER_RULE_HZ = 80.0  # lishield_guard.spec: f_B / M must exceed this
 NEGATIVE_KINDS = ("steady", "mains", "pwm", "texture")
 # A 16 MHz timer (a common MCU clock) keeps every tone ratio within 1e-4 for any f_B drawn;
 # at 1 MHz, slots of a non-integer f_B lose up to 1e-3 of a ratio to tick rounding.
@@ -89,7 +108,13 @@ class Mix:
     mono_presets: tuple[str, ...] = ("table1-seq1", "table1-seq2", "table1-seq3")
     rgb_presets: tuple[str, ...] = ("table2-rgb",)
     switching_min_hz: float = 200.0
-    exposure_range_s: tuple[float, float] = (1 / 8000, 1 / 500)
+    switching_band_probs: tuple[float, float, float, float] = (0.31, 0.31, 0.31, 0.07)
+    beyond_low_range_hz: tuple[float, float] = (170.0, 200.0)
+    beyond_high_factor_range: tuple[float, float] = (1.0, 1.2)
+    continuous_phase_prob: float = 0.5
+    order_probs: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3)
+    rise_frac_range: tuple[float, float] = (0.0, 0.05)
+    exposure_range_s: tuple[float, float] = (1 / 8000, 1 / 30)
     attack_prob: float = 0.2
     attack_max_k: int = 3
     attack_range_s: tuple[float, float] = (1 / 8000, 1 / 200)
@@ -100,11 +125,13 @@ class Mix:
     row_rate_range_hz: tuple[float, float] = (30_000.0, 120_000.0)
     jpeg_quality_range: tuple[int, int] = (60, 95)
     subsampling_420_prob: float = 0.8
-    downscale_prob: float = 0.4
-    downscale_range: tuple[float, float] = (1.25, 3.0)
+    downscale_prob: float = 0.5
+    downscale_range: tuple[float, float] = (1.0, 4.0)
+    downscale_long_side_range_px: tuple[int, int] = (1080, 2048)
     rotate_prob: float = 0.2
     rotate_exif_prob: float = 0.5
     positive_texture_prob: float = 0.2
+    real_photo_prob: float = 0.8
     negative_probs: tuple[float, float, float, float] = (0.30, 0.25, 0.25, 0.20)
     mains_depth_range: tuple[float, float] = (0.05, 1.0)
     pwm_freq_range_hz: tuple[float, float] = (90.0, 20_000.0)
@@ -121,10 +148,18 @@ class Mix:
                     f.name.endswith("_range_hz"):
                 if len(v) != 2 or not v[0] <= v[1]:
                     raise ConfigError(f"{f.name} must be (low, high) with low <= high, got {v!r}")
-        if len(self.negative_probs) != 4 or abs(sum(self.negative_probs) - 1) > 1e-6 or min(
-                self.negative_probs) < 0:
-            raise ConfigError(f"negative_probs (steady, mains, pwm, texture) must be >= 0 and "
-                              f"sum to 1, got {self.negative_probs!r}")
+        for name, n, what in (("negative_probs", 4, "steady, mains, pwm, texture"),
+                              ("switching_band_probs", 4, "200, between, f1, beyond"),
+                              ("order_probs", 3, "ascending, descending, other")):
+            v = getattr(self, name)
+            if len(v) != n or abs(sum(v) - 1) > 1e-6 or min(v) < 0:
+                raise ConfigError(f"{name} ({what}) must be >= 0 and sum to 1, got {v!r}")
+        if not (0.0 <= self.rise_frac_range[0] and self.rise_frac_range[1] < 0.5):
+            raise ConfigError(f"rise_frac_range must lie in [0, 0.5), got "
+                              f"{self.rise_frac_range!r}")
+        if self.beyond_low_range_hz[0] <= 0 or self.beyond_high_factor_range[0] < 1.0:
+            raise ConfigError("beyond_low_range_hz must be > 0 and beyond_high_factor_range "
+                              ">= 1")
         for p in self.mono_presets + self.rgb_presets:
             get_preset(p)
         if self.exposure_range_s[0] <= 0:
@@ -237,10 +272,10 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
         rgb = rng.random() < mix.rgb_prob
         presets = mix.rgb_presets if rgb else mix.mono_presets
         spec = get_preset(str(rng.choice(presets)))
-        lo = max(mix.switching_min_hz, FLICKER_RULE_HZ * spec.n_tones * 1.001)
-        f_b = round(float(rng.uniform(min(lo, spec.f1_hz), spec.f1_hz)), 2)
+        emitter = sample_emitter(spec, rng=rng, mix=mix)
+        f_b = emitter["switching_hz"]
         p.update(kind="barcode", preset=spec.name, channels=list(spec.channel_names),
-                 switching_hz=f_b, tones_hz={c: list(fs) for c, fs in spec.channels})
+                 tones_hz={c: list(fs) for c, fs in spec.channels}, **emitter)
         if rng.random() < mix.attack_prob:
             c_idx = int(rng.integers(len(spec.channels)))
             ch, tones = spec.channels[c_idx]
@@ -252,10 +287,13 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
                 exposure_s = k / f
                 p["attack"] = True
                 p["attacked_tone"] = {"channel": ch, "hz": f, "k": k}
-        p["light"] = {"kind": "led", "preset": spec.name, "switching_hz": f_b}
+        p["light"] = {"kind": "led", "preset": spec.name, "switching_hz": f_b,
+                      "phase": emitter["phase_mode"], "order": emitter["slot_order"],
+                      "rise_s": emitter["rise_s"]}
     else:
         kind = NEGATIVE_KINDS[int(rng.choice(4, p=np.asarray(mix.negative_probs)))]
-        p.update(kind=kind, preset=None, channels=["W"], switching_hz=None, tones_hz=None)
+        p.update(kind=kind, preset=None, channels=["W"], switching_hz=None, tones_hz=None,
+                 **{k: None for k in EMITTER_FIELDS if k != "switching_hz"})
         if kind == "mains":
             p["light"] = {"kind": "mains", "supply_hz": float(rng.choice([50.0, 60.0])),
                           "depth": float(rng.uniform(*mix.mains_depth_range)),
@@ -280,8 +318,12 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
     p["jpeg_quality"] = int(rng.integers(mix.jpeg_quality_range[0],
                                          mix.jpeg_quality_range[1] + 1))
     p["chroma_subsampling"] = "4:2:0" if rng.random() < mix.subsampling_420_prob else "4:4:4"
-    p["downscale"] = float(rng.uniform(*mix.downscale_range)) if rng.random() < \
-        mix.downscale_prob else 1.0
+    p["downscale"] = 1.0
+    if rng.random() < mix.downscale_prob:
+        long_side = max(n_rows, n_cols)
+        lo_px, hi_px = mix.downscale_long_side_range_px
+        target = float(rng.uniform(min(lo_px, long_side), min(hi_px, long_side)))
+        p["downscale"] = float(np.clip(long_side / target, *mix.downscale_range))
     if rng.random() < mix.rotate_prob:
         p["rotation_deg"] = int(rng.choice([90, 270]))
         p["rotation_mode"] = "exif" if rng.random() < mix.rotate_exif_prob else "bake"
@@ -295,8 +337,127 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
     else:
         p["scene_kind"] = "texture" if (label and rng.random() < mix.positive_texture_prob) \
             else "photo"
+    p["scene_photo"] = None
+    photos = real_photo_scenes() if mix.real_photo_prob > 0 else ()
+    if p["scene_kind"] == "photo" and photos and rng.random() < mix.real_photo_prob:
+        p["scene_kind"] = "real-photo"
+        p["scene_photo"] = str(photos[int(rng.integers(len(photos)))])
     p["noise"] = bool(mix.noise)
+    if label:
+        p["nominal"] = bool(not p["attack"] and p["coverage"]["fraction"] >= 1.0
+                            and p["ambient_ratio"] <= 1.0
+                            and p["exposure_s"] < 0.5 / p["switching_hz"])
+    else:
+        p["nominal"] = None
     return p
+
+
+def f_b_band(switching_hz: float, f1_hz: float, *, low_hz: float = 200.0) -> str:
+    """Name of the switching-rate band of f_B (Hz) for a barcode whose lowest tone is f1_hz.
+
+    ``"200"`` (f_B = 200 Hz, paper Sec. 7.3), ``"f1"`` (f_B = f_1, Sec. 3.3.1), ``"between"``
+    (strictly between), ``"beyond"`` (below 200 Hz or above f_1). Equality is to 1e-6
+    relative.
+    """
+    if abs(switching_hz - low_hz) <= 1e-6 * low_hz:
+        return "200"
+    if abs(switching_hz - f1_hz) <= 1e-6 * f1_hz:
+        return "f1"
+    return "between" if low_hz < switching_hz < f1_hz else "beyond"
+
+
+def slot_order_kind(order) -> str:
+    """``"ascending"``, ``"descending"`` or ``"other"`` for a slot order (tone indices)."""
+    order = tuple(order)
+    m = len(order)
+    if order == tuple(range(m)):
+        return "ascending"
+    if order == tuple(range(m - 1, -1, -1)):
+        return "descending"
+    return "other"
+
+
+EMITTER_FIELDS = ("switching_hz", "f_b_band", "phase_mode", "slot_order", "slot_order_kind",
+                  "rise_frac", "rise_s")
+
+
+def sample_emitter(spec, *, rng: np.random.Generator, mix: Mix) -> dict:
+    """Draw how an LED built by others plays ``spec`` (DESIGN.md, "What the detector may assume").
+
+    Parameters
+    ----------
+    spec : BarcodeSpec
+        The barcode (its tones and M).
+    rng : numpy.random.Generator
+        Source of every draw.
+    mix : Mix
+        ``switching_band_probs`` over (200 Hz, between, f_1, beyond), ``beyond_low_range_hz``,
+        ``beyond_high_factor_range``, ``continuous_phase_prob``, ``order_probs`` over
+        (ascending, descending, another fixed permutation) and ``rise_frac_range``.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``switching_hz`` (f_B, Hz, rounded to 0.01 Hz), ``f_b_band``, ``phase_mode``
+        ("restart"/"continuous"), ``slot_order`` (list of tone indices), ``slot_order_kind``,
+        ``rise_frac`` (of the shortest half-period, unitless) and ``rise_s`` (seconds).
+    """
+    f1 = spec.f1_hz
+    low = mix.switching_min_hz
+    band = ("200", "between", "f1", "beyond")[int(rng.choice(4, p=np.asarray(
+        mix.switching_band_probs)))]
+    if band == "200" or f1 <= low:
+        f_b = low
+    elif band == "f1":
+        f_b = f1
+    elif band == "between":
+        f_b = _log_uniform(rng, low, f1)
+    elif rng.random() < 0.5:
+        f_b = _log_uniform(rng, *mix.beyond_low_range_hz)
+    else:
+        f_b = f1 * float(rng.uniform(*mix.beyond_high_factor_range))
+    f_b = round(float(f_b), 2)
+    phase = "continuous" if rng.random() < mix.continuous_phase_prob else "restart"
+    m = spec.n_tones
+    kind = ("ascending", "descending", "other")[int(rng.choice(3, p=np.asarray(
+        mix.order_probs)))]
+    if kind == "ascending" or m == 1:
+        order = list(range(m))
+    elif kind == "descending":
+        order = list(range(m - 1, -1, -1))
+    else:
+        others = [o for o in itertools.permutations(range(m))
+                  if slot_order_kind(o) == "other"] if m <= 6 else None
+        if others:
+            order = list(others[int(rng.integers(len(others)))])
+        elif m > 6:
+            while slot_order_kind(order := [int(i) for i in rng.permutation(m)]) != "other":
+                pass
+        else:  # M = 2: only ascending and descending exist
+            order = list(range(m - 1, -1, -1))
+    rise_frac = float(rng.uniform(*mix.rise_frac_range))
+    half_period_s = min(spec.duty, 1.0 - spec.duty) / spec.all_freqs_hz[-1]
+    return {"switching_hz": f_b, "f_b_band": f_b_band(f_b, f1, low_hz=low),
+            "phase_mode": phase, "slot_order": order, "slot_order_kind": slot_order_kind(order),
+            "rise_frac": rise_frac, "rise_s": rise_frac * half_period_s}
+
+
+def real_photo_scenes() -> tuple[str, ...]:
+    """Hook: paths of the real-photo scenes (``out/photos`` corpus) the default mix may use.
+
+    Returns ``synth.scene.list_photo_scenes()`` when `synth.scene` provides it and the corpus
+    is present, else ``()`` (the mix then keeps scikit-image photos and textures). Sorted, so
+    a dataset seed picks the same photos on every machine holding the same corpus.
+    """
+    from synth import scene
+
+    lister = getattr(scene, "list_photo_scenes", None)
+    if lister is None:
+        return ()
+    try:
+        return tuple(sorted(str(x) for x in lister()))
+    except (OSError, LookupError):
+        return ()
 
 
 def _make_light(p: dict):
@@ -305,9 +466,15 @@ def _make_light(p: dict):
     lt = p["light"]
     if lt["kind"] == "led":
         from firmware.sequence import compile_spec
+        from lishield_guard.spec import SpecWarning
 
-        spec = dataclasses.replace(get_preset(lt["preset"]), switching_hz=lt["switching_hz"])
-        return SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ))
+        spec = dataclasses.replace(get_preset(lt["preset"]), switching_hz=lt["switching_hz"],
+                                   phase=lt.get("phase", "restart"),
+                                   order=tuple(lt.get("order") or ()) or "cyclic")
+        with warnings.catch_warnings():  # f_B = 200 Hz breaks our flicker rule, on purpose
+            warnings.simplefilter("ignore", SpecWarning)
+            seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW)
+        return SequenceLight(seq, rise_s=float(lt.get("rise_s") or 0.0))
     if lt["kind"] == "mains":
         return MainsFlicker(supply_hz=lt["supply_hz"], depth=lt["depth"], phase_s=lt["phase_s"])
     if lt["kind"] == "pwm":
@@ -341,6 +508,9 @@ def render_item(p: dict) -> tuple[bytes, dict]:
     if p.get("scene_name"):
         scene = load_scene(p["scene_name"], n_rows, n_cols)
         scene_desc = {"scene": p["scene_name"]}
+    elif p.get("scene_photo"):
+        scene = load_scene(p["scene_photo"], n_rows, n_cols, rng=scene_rng, min_crop=0.5)
+        scene_desc = {"scene": p["scene_photo"]}
     elif p["scene_kind"] == "texture":
         kind = str(scene_rng.choice(("blinds", "bricks", "fabric")))
         scene, sp = texture_scene(kind, n_rows, n_cols, rng=scene_rng)

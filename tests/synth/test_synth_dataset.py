@@ -14,19 +14,25 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from lishield_guard.errors import ConfigError
-from lishield_guard.spec import get_preset
+from lishield_guard.spec import SpecWarning, get_preset
 from synth.dataset import (
+    EMITTER_FIELDS,
     MIXES,
     Mix,
     demo_images,
+    f_b_band,
     item_seed,
     parse_size,
+    render_item,
+    sample_emitter,
     sample_item,
+    slot_order_kind,
     write_dataset,
 )
 
 SIZE = "96x64"
-REQUIRED = {"file", "label", "kind", "preset", "channels", "switching_hz", "row_rate_hz",
+REQUIRED = {"file", "label", "kind", "preset", "channels", "switching_hz", "f_b_band",
+            "phase_mode", "slot_order", "slot_order_kind", "rise_s", "nominal", "row_rate_hz",
             "exposure_s", "attack", "attacked_tone", "ambient_ratio", "coverage", "jpeg_quality",
             "chroma_subsampling", "downscale", "rotation_deg", "rotation_mode",
             "exif_orientation", "scene", "light", "item_seed", "width", "height"}
@@ -76,7 +82,7 @@ def test_default_mix_proportions():
     assert frac(pos, lambda p: p["attack"]) == pytest.approx(0.2, abs=0.03)
     assert frac(pos, lambda p: p["ambient_ratio"] == 0) == pytest.approx(0.3, abs=0.03)
     assert frac(pos, lambda p: p["coverage"]["fraction"] < 1) == pytest.approx(0.25, abs=0.03)
-    assert frac(pos, lambda p: p["downscale"] > 1) == pytest.approx(0.4, abs=0.03)
+    assert frac(pos, lambda p: p["downscale"] > 1) == pytest.approx(0.5, abs=0.03)
     assert frac(pos, lambda p: p["rotation_deg"] in (90, 270)) == pytest.approx(0.2, abs=0.03)
     assert frac(pos, lambda p: p["chroma_subsampling"] == "4:2:0") == pytest.approx(0.8,
                                                                                      abs=0.03)
@@ -84,9 +90,28 @@ def test_default_mix_proportions():
     for kind, share in zip(("steady", "mains", "pwm", "texture"), (0.3, 0.25, 0.25, 0.2),
                            strict=True):
         assert kinds[kind] / len(neg) == pytest.approx(share, abs=0.04)
+    bands = Counter(p["f_b_band"] for p in pos)
+    for band, share in (("200", 0.31), ("between", 0.31), ("f1", 0.31), ("beyond", 0.07)):
+        assert bands[band] / len(pos) == pytest.approx(share, abs=0.03)
+    assert frac(pos, lambda p: p["phase_mode"] == "continuous") == pytest.approx(0.5, abs=0.03)
+    orders = Counter(p["slot_order_kind"] for p in pos)
+    for kind in ("ascending", "descending", "other"):
+        assert orders[kind] / len(pos) == pytest.approx(1 / 3, abs=0.03)
     for p in pos:
         spec = get_preset(p["preset"])
-        assert max(200.0, 80.0 * spec.n_tones) <= p["switching_hz"] <= spec.f1_hz
+        f_b = p["switching_hz"]
+        assert p["light"]["switching_hz"] == f_b
+        if p["f_b_band"] == "beyond":
+            assert 170 <= f_b < 200 or spec.f1_hz < f_b <= 1.2 * spec.f1_hz
+        else:
+            assert 200.0 <= f_b <= spec.f1_hz
+            assert (f_b == 200.0) == (p["f_b_band"] == "200")
+            assert (f_b == spec.f1_hz) == (p["f_b_band"] == "f1")
+        assert sorted(p["slot_order"]) == [0, 1, 2] == sorted(p["light"]["order"])
+        half_period_s = 0.5 / spec.all_freqs_hz[-1]
+        assert 0 <= p["rise_s"] == p["light"]["rise_s"] <= 0.05 * half_period_s
+        assert p["nominal"] == (not p["attack"] and p["coverage"]["fraction"] == 1
+                                and p["ambient_ratio"] <= 1 and p["exposure_s"] < 0.5 / f_b)
         assert 30_000 <= p["row_rate_hz"] <= 120_000
         assert 60 <= p["jpeg_quality"] <= 95
         if p["attack"]:
@@ -95,13 +120,14 @@ def test_default_mix_proportions():
             assert 1 / 8000 <= p["exposure_s"] <= 1 / 200 and t["k"] in (1, 2, 3)
             assert t["hz"] in dict(spec.channels)[t["channel"]]
         else:
-            assert 1 / 8000 <= p["exposure_s"] <= 1 / 500
+            assert 1 / 8000 <= p["exposure_s"] <= 1 / 30
         if p["ambient_ratio"]:
             assert 0.1 <= p["ambient_ratio"] <= 10
         if p["coverage"]["fraction"] < 1:
             assert 0.3 <= p["coverage"]["fraction"] <= 0.8
         if p["downscale"] > 1:
-            assert 1.25 <= p["downscale"] <= 3
+            assert 1080 <= 1920 / p["downscale"] <= 1920
+    assert frac(pos, lambda p: p["exposure_s"] > 1 / 200) > 0.2
     for p in neg:
         lt = p["light"]
         if lt["kind"] == "mains":
@@ -110,6 +136,75 @@ def test_default_mix_proportions():
             assert 90 <= lt["freq_hz"] <= 20_000 and 0.1 <= lt["duty"] <= 0.9
         if p["kind"] == "texture":
             assert lt["kind"] == "steady" and p["scene_kind"] == "texture"
+
+
+def test_default_mix_covers_every_emitter_cell_in_60_draws():
+    pos = [sample_item(1, seed=item_seed(21, i), mix=MIXES["default"], size=(1080, 1920))
+           for i in range(60)]
+    assert {p["f_b_band"] for p in pos} == {"200", "between", "f1", "beyond"}
+    assert {p["phase_mode"] for p in pos} == {"restart", "continuous"}
+    assert {p["slot_order_kind"] for p in pos} == {"ascending", "descending", "other"}
+    assert {p["channels"] == ["W"] for p in pos} == {True, False}
+    for p in pos:
+        assert set(EMITTER_FIELDS) <= set(p)
+    neg = sample_item(0, seed=1, mix=MIXES["default"], size=(64, 96))
+    assert all(neg[k] is None for k in EMITTER_FIELDS) and neg["nominal"] is None
+
+
+def test_emitter_helpers():
+    assert f_b_band(200.0, 400.0) == "200" and f_b_band(400.0, 400.0) == "f1"
+    assert f_b_band(300.0, 400.0) == "between"
+    assert f_b_band(190.0, 400.0) == f_b_band(420.0, 400.0) == "beyond"
+    assert slot_order_kind([0, 1, 2]) == "ascending"
+    assert slot_order_kind((2, 1, 0)) == "descending"
+    assert slot_order_kind([1, 2, 0]) == "other"
+    # M = 2 has no "other" order: the draw falls back to descending
+    mix = MIXES["default"].with_overrides({"order_probs": "0,0,1"})
+    spec2 = get_preset("table3-m2")
+    rng = np.random.default_rng(0)
+    assert sample_emitter(spec2, rng=rng, mix=mix)["slot_order"] == [1, 0]
+    with pytest.raises(ConfigError, match="switching_band_probs"):
+        Mix(switching_band_probs=(0.5, 0.5, 0.5, 0.0))
+
+
+def test_rendered_emitter_is_what_the_manifest_says(monkeypatch):
+    from firmware.sequence import compile_spec
+    from synth import dataset as ds
+    from synth.light import SequenceLight
+
+    p = next(q for i in range(200)
+             if (q := sample_item(1, seed=item_seed(4, i), mix=MIXES["default"],
+                                  size=(64, 96)))["f_b_band"] == "200"
+             and q["phase_mode"] == "continuous" and q["slot_order_kind"] == "other")
+    light = ds._make_light(p)
+    assert isinstance(light, SequenceLight)
+    spec = light.sequence.spec
+    assert spec.f_b_hz == 200.0 and spec.phase == "continuous"
+    assert list(spec.slot_order()) == p["slot_order"]
+    assert light.rise_s == p["rise_s"]
+    # the LED sequence is the firmware's (single source of truth)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert light.sequence.same_steps(compile_spec(spec, clock_hz=ds.LED_CLOCK_HZ,
+                                                      allow=ds.EMITTER_ALLOW))
+
+
+def test_real_photo_hook(monkeypatch, tmp_path):
+    from synth import dataset as ds
+    from synth import scene
+
+    monkeypatch.setattr(scene, "list_photo_scenes", lambda: [], raising=False)
+    assert ds.real_photo_scenes() == ()
+    photo = tmp_path / "p.png"
+    Image.fromarray(np.full((40, 60, 3), 128, np.uint8)).save(photo)
+    monkeypatch.setattr(scene, "list_photo_scenes", lambda: [photo], raising=False)
+    items = [sample_item(1, seed=i, mix=MIXES["default"], size=(32, 48)) for i in range(40)]
+    real = [p for p in items if p["scene_kind"] == "real-photo"]
+    assert real and all(p["scene_photo"] == str(photo) for p in real)
+    _, rec = render_item(real[0])
+    assert rec["scene"] == {"scene": str(photo)}
 
 
 def test_easy_mono_rgb_mixes():
@@ -171,6 +266,25 @@ def test_cli_dataset_and_capture(tmp_path):
     assert res.exit_code == 0, res.output
     assert Image.open(out).size == (80, 107)
     assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_cli_capture_emitter_options(tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "c200.jpg"
+    with pytest.warns(SpecWarning, match="flicker"):  # our firmware's rule, allowed here
+        res = runner.invoke(_cli(), ["synth", "capture", "--preset", "table1-seq1",
+                                     "--switching-hz", "200", "--phase", "continuous",
+                                     "--order", "2,1,0", "--rise-s", "2e-5", "--size",
+                                     "160x120", "--exposure-s", "0.0005", "--seed", "1", "-o",
+                                     str(out)])
+    assert res.exit_code == 0, res.output
+    assert "f_B=200Hz phase=continuous order=2,1,0" in res.output
+    assert Image.open(out).size == (160, 120)
+    for args, match in ((["--order", "0,0,1"], "permutation"), (["--order", "x"], "--order"),
+                        (["--phase", "running"], "phase"), (["--rise-s", "-1"], "rise_s")):
+        res = runner.invoke(_cli(), ["synth", "capture", "--size", "64x48", "-o",
+                                     str(tmp_path / "x.jpg"), *args])
+        assert res.exit_code == 2 and match in res.output, res.output
 
 
 @pytest.mark.parametrize("args,match", [
