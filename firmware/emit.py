@@ -283,12 +283,14 @@ def to_c_header(seq: Sequence | SequenceTable, *, symbol: str = "lsp_seq",
     if isinstance(seq, Sequence):
         rep = achieved_report(seq)
         s = seq.spec
+        order_kind = "explicit" if isinstance(s.order, tuple) else s.order
         meta += ["",
                  f"spec:         {s.name}",
                  "tones:        " + "; ".join(f"{c}: {', '.join(f'{f:g}' for f in fs)} Hz"
                                                for c, fs in s.channels),
-                 f"f_B:          {s.f_b_hz:g} Hz, duty {s.duty:g}, order {s.order}, "
-                 f"intensity levels {s.intensity_levels}",
+                 f"f_B:          {s.f_b_hz:g} Hz, duty {s.duty:g}, slot order "
+                 f"{','.join(map(str, s.slot_order()))} ({order_kind}), "
+                 f"phase {s.phase}, intensity levels {s.intensity_levels}",
                  f"patterns:     {seq.n_patterns} x M/f_B = {rep['pattern_period_s'] * 1e3:.6g} ms",
                  f"slot rate:    {rep['slot_rate_hz']:.6f} Hz achieved",
                  "achieved:     channel  spec Hz  achieved Hz (min..max)  rel. error"]

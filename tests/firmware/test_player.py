@@ -71,3 +71,20 @@ def test_c_player_rejects_corrupt_files(host_test, tmp_path):
         res = subprocess.run([str(host_test), str(path), "1"], capture_output=True, text=True,
                              check=False)
         assert res.returncode == 2 and msg in res.stderr
+
+
+@pytest.mark.parametrize(("f_b", "phase", "order"), [
+    (200.0, "continuous", (2, 0, 1)), (300.0, "continuous", (2, 1, 0)),
+    (333.3, "restart", (0, 2, 1))])
+def test_c_player_plays_other_emitters_unchanged(host_test, tmp_path, f_b, phase, order):
+    import warnings
+
+    spec = dataclasses.replace(PRESETS["table2-rgb"], switching_hz=f_b, phase=phase, order=order)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seq = compile_spec(spec, clock_hz=16_000_000, allow=("flicker",))
+    path = tmp_path / "other.bin"
+    path.write_bytes(to_binary(seq))
+    assert _run(host_test, str(path), "2") == seq.edges(2)
+    header = to_c_header(seq)
+    assert f"phase {phase}" in header and ",".join(map(str, order)) in header
