@@ -257,13 +257,18 @@ class Limits:
         Largest width x height accepted (decompression-bomb guard).
     max_bytes : int
         Largest encoded input accepted, in bytes.
+    max_decode_bytes : int
+        Memory budget of one detection, in bytes: its peak is estimated from the header
+        (pixels actually decoded, after any DCT-domain downscaling, times the measured bytes
+        per pixel of the decode path) and checked before any pixel is decoded.
     """
 
     max_pixels: int = 100_000_000
     max_bytes: int = 64 * 1024 * 1024
+    max_decode_bytes: int = 1024 * 1024 * 1024
 
     def __post_init__(self) -> None:
-        for name in ("max_pixels", "max_bytes"):
+        for name in ("max_pixels", "max_bytes", "max_decode_bytes"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")

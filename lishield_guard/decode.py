@@ -8,6 +8,8 @@ rows and records display rotation in the EXIF orientation tag, which is reported
 from __future__ import annotations
 
 import io
+import os
+import stat
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +27,8 @@ from lishield_guard.errors import (
     UnsupportedImageError,
 )
 
-__all__ = ["Decoded", "decode", "validate_image"]
+__all__ = ["Decoded", "check_budget", "decode", "jpeg_scale", "read_regular_file",
+           "validate_image"]
 
 ImageFile.LOAD_TRUNCATED_IMAGES = False
 # Pillow's own bomb check fires inside Image.open and surfaces as "unidentified image"; the
@@ -34,6 +37,16 @@ Image.MAX_IMAGE_PIXELS = None
 _HEIF_READY = False
 EXIF_ORIENTATION_TAG = 0x0112
 _JPEG_MAGIC = b"\xff\xd8\xff"
+_JPEG_SOS = b"\xff\xda"
+_JPEG_EOI = b"\xff\xd9"
+# Peak memory of one detection, for the budget check (Limits.max_decode_bytes). Measured with
+# ru_maxrss on 12 MP noise images (the costly path: luma not decisive, colour planes analysed):
+# JPEG through libjpeg-turbo 7.0 bytes per decoded pixel, PNG through Pillow 17.5.
+DECODE_BASE_BYTES = 32 * 1024 * 1024  # fixed cost of a detection beyond the pixels
+FAST_JPEG_BYTES_PER_PIXEL = 8
+PILLOW_BYTES_PER_PIXEL = 20
+WIDE_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I", "F")  # more than 8 bits per sample
+JPEG_SCALES = (1, 2, 4, 8)  # DCT-domain downscaling factors of libjpeg-turbo
 
 
 def _ensure_heif() -> None:
@@ -113,6 +126,7 @@ class Decoded:
     row_scale: float = 1.0
     _data: bytes | None = field(default=None, repr=False)
     _rgb: np.ndarray | None = field(default=None, repr=False)
+    _limits: Limits | None = field(default=None, repr=False)
 
     def rgb(self) -> np.ndarray:
         """Colour planes (n_rows, n_cols, 3), decoded on first use (uint8/uint16/float32)."""
@@ -121,7 +135,8 @@ class Decoded:
                 self._rgb = np.repeat(self.luma[:, :, None], 3, axis=2)
             elif self._data is not None:
                 rows = self.luma.shape[0] if self.row_scale > 1 else 0
-                self._rgb = _decode_pixels(self._data, want_rgb=True, min_rows=rows)[0]
+                self._rgb = _decode_pixels(self._data, want_rgb=True, min_rows=rows,
+                                           limits=self._limits)[0]
             else:  # pragma: no cover - arrays always keep their rgb
                 raise InvalidImageError("colour planes are not available")
         return self._rgb
@@ -170,19 +185,116 @@ def _open(data: bytes) -> Image.Image:
         raise CorruptImageError(f"cannot read image header: {exc}") from exc
 
 
-def _decode_pixels(data: bytes, *, want_rgb: bool, fast: bool = True,
-                   min_rows: int = 0) -> tuple[np.ndarray, bool]:
-    if fast and data.startswith(_JPEG_MAGIC):
+def jpeg_scale(n_rows: int, min_rows: int) -> int:
+    """DCT-domain downscaling factor libjpeg-turbo applies for ``min_height=min_rows``.
+
+    The largest of 1, 2, 4, 8 that still leaves at least ``min_rows`` rows (1 when
+    ``min_rows`` is 0).
+
+    Examples
+    --------
+    >>> jpeg_scale(65000, 1536), jpeg_scale(3000, 1536), jpeg_scale(3000, 0)
+    (8, 1, 1)
+    """
+    if min_rows <= 0:
+        return 1
+    return max(s for s in JPEG_SCALES if -(-n_rows // s) >= min_rows or s == 1)
+
+
+def check_budget(n_rows: int, n_cols: int, *, bytes_per_pixel: float, scale: int = 1,
+                 limits: Limits) -> int:
+    """Estimated peak bytes of decoding and detecting on an image; raise past the budget.
+
+    Parameters
+    ----------
+    n_rows, n_cols : int
+        Size declared by the header, in pixels.
+    bytes_per_pixel : float
+        Measured peak bytes per decoded pixel of the decode path (see the module constants).
+    scale : int
+        DCT-domain downscaling factor (decoded size is ceil(n / scale) on both axes).
+    limits : Limits
+        ``max_decode_bytes`` is the budget.
+
+    Returns
+    -------
+    int
+        The estimate, in bytes.
+
+    Raises
+    ------
+    ImageTooLargeError
+        When the estimate exceeds ``limits.max_decode_bytes``.
+    """
+    px = -(-n_rows // scale) * -(-n_cols // scale)
+    need = int(DECODE_BASE_BYTES + px * bytes_per_pixel)
+    if need > limits.max_decode_bytes:
+        at = f" at 1/{scale} scale" if scale > 1 else ""
+        raise ImageTooLargeError(f"decoding {n_cols}x{n_rows}{at} needs about {need} bytes > "
+                                 f"max_decode_bytes={limits.max_decode_bytes}")
+    return need
+
+
+def _jpeg_complete(data: bytes) -> bool:
+    """True when an EOI marker follows the last start-of-scan (entropy-coded data never holds
+    ``FF DA`` or ``FF D9``: a 0xFF byte there is followed by 0x00 or a restart marker)."""
+    sos = data.rfind(_JPEG_SOS)
+    return sos >= 0 and data.find(_JPEG_EOI, sos) >= 0
+
+
+def _simplejpeg(data: bytes, *, want_rgb: bool, min_rows: int):
+    import simplejpeg
+
+    space = "RGB" if want_rgb else "GRAY"
+    return simplejpeg.decode_jpeg(data, colorspace=space, min_height=min_rows, strict=True)
+
+
+def _corrupt_jpeg(message: str) -> bool:
+    low = message.lower()
+    return "corrupt jpeg" in low or "premature end" in low or "bogus" in low or \
+        "invalid" in low or "truncated" in low
+
+
+def _decode_fast_jpeg(data: bytes, *, want_rgb: bool, min_rows: int):
+    """libjpeg-turbo decode that refuses truncated or corrupt data (None: let Pillow try).
+
+    A file that lacks only its final EOI marker is tolerated; extraneous bytes before a
+    marker (a warning many cameras trigger) are tolerated; any other corruption, including a
+    premature end of the entropy-coded data that libjpeg would fill with grey, raises.
+    """
+    try:
+        return _simplejpeg(data, want_rgb=want_rgb, min_rows=min_rows)
+    except ValueError as exc:
+        msg = str(exc)
+    if "extraneous bytes" in msg.lower():
         import simplejpeg
 
-        try:
-            if want_rgb:
-                return simplejpeg.decode_jpeg(data, colorspace="RGB", min_height=min_rows), True
-            gray = simplejpeg.decode_jpeg(data, colorspace="GRAY", min_height=min_rows)
-            return gray[:, :, 0], True
+        space = "RGB" if want_rgb else "GRAY"
+        return simplejpeg.decode_jpeg(data, colorspace=space, min_height=min_rows,
+                                      strict=False)
+    if not _corrupt_jpeg(msg):
+        return None  # CMYK, arithmetic coding, ...: Pillow decides
+    if not _jpeg_complete(data):
+        try:  # tolerance: only the final EOI marker is missing
+            return _simplejpeg(data + _JPEG_EOI, want_rgb=want_rgb, min_rows=min_rows)
         except ValueError:
-            pass  # CMYK, arithmetic coding or a warning: let Pillow decide below
+            pass
+        raise CorruptImageError(f"truncated JPEG data: {msg}")
+    raise CorruptImageError(f"corrupt JPEG data: {msg}")
+
+
+def _decode_pixels(data: bytes, *, want_rgb: bool, fast: bool = True,
+                   min_rows: int = 0, limits: Limits | None = None) -> tuple[np.ndarray, bool]:
+    if data.startswith(_JPEG_MAGIC):
+        # The fast decoder doubles as the truncation check of the Pillow paths (at 1/8 scale).
+        probe = _decode_fast_jpeg(data, want_rgb=want_rgb and fast,
+                                  min_rows=min_rows if fast else 1)
+        if probe is not None and fast:
+            return (probe, True) if want_rgb else (probe[:, :, 0], True)
     img = _open(data)
+    n_cols, n_rows = img.size
+    per_px = PILLOW_BYTES_PER_PIXEL * (2 if img.mode in WIDE_MODES else 1)
+    check_budget(n_rows, n_cols, bytes_per_pixel=per_px, limits=limits or Limits())
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -250,15 +362,7 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast
             return Decoded(_luma_of(arr), "array", 0, is_color=True, _rgb=arr)
         return Decoded(arr, "array", 0)
     if isinstance(source, str | Path):
-        path = Path(source)
-        try:
-            size = path.stat().st_size
-            if size > limits.max_bytes:
-                raise PayloadTooLargeError(f"file has {size} bytes > max_bytes="
-                                           f"{limits.max_bytes}")
-            data = path.read_bytes()
-        except OSError as exc:
-            raise UnsupportedImageError(f"cannot read {str(path)!r}: {exc.strerror}") from exc
+        data = read_regular_file(source, max_bytes=limits.max_bytes)
     elif isinstance(source, bytes | bytearray | memoryview):
         data = bytes(source)
     else:
@@ -278,13 +382,57 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast
     orientation = _orientation(img)
     fmt = img.format or "unknown"
     min_rows = max_rows if fast and max_rows and n_rows >= 2 * max_rows else 0
-    pixels, is_color = _decode_pixels(data, want_rgb=want_rgb, fast=fast, min_rows=min_rows)
+    if fast and data.startswith(_JPEG_MAGIC):
+        scale = jpeg_scale(n_rows, min_rows)
+        check_budget(n_rows, n_cols, bytes_per_pixel=FAST_JPEG_BYTES_PER_PIXEL, scale=scale,
+                     limits=limits)
+    pixels, is_color = _decode_pixels(data, want_rgb=want_rgb, fast=fast, min_rows=min_rows,
+                                      limits=limits)
     row_scale = n_rows / pixels.shape[0]
-    if (pixels.shape[:2] != (n_rows, n_cols) and not min_rows) or abs(
-            n_cols / pixels.shape[1] - row_scale) > 0.5:
+    scale = round(row_scale)
+    expected = (-(-n_rows // scale), -(-n_cols // scale)) if scale in JPEG_SCALES else None
+    if pixels.shape[:2] != (n_rows, n_cols) and (not min_rows or pixels.shape[:2] != expected):
         raise CorruptImageError(f"decoded size {pixels.shape[:2]} differs from the header's "
                                 f"{(n_rows, n_cols)}")
     if pixels.ndim == 3:
         return Decoded(_luma_of(pixels), fmt, len(data), orientation, True, row_scale, data,
-                       pixels)
-    return Decoded(pixels, fmt, len(data), orientation, is_color, row_scale, data)
+                       pixels, limits)
+    return Decoded(pixels, fmt, len(data), orientation, is_color, row_scale, data, None, limits)
+
+
+def read_regular_file(path: str | Path, *, max_bytes: int) -> bytes:
+    """The bytes of a regular file (or of a link to one), at most ``max_bytes`` of them.
+
+    FIFOs, devices, sockets and folders are refused without reading (opening a FIFO does not
+    block: it is opened non-blocking and checked with fstat first).
+
+    Raises
+    ------
+    UnsupportedImageError
+        Not a regular file, or unreadable.
+    PayloadTooLargeError
+        More than ``max_bytes`` bytes.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    shown = os.fsdecode(path).encode("utf-8", "backslashreplace").decode("utf-8")
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise UnsupportedImageError(f"cannot read {shown!r}: {exc.strerror}") from exc
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise UnsupportedImageError(f"cannot read {shown!r}: not a regular file")
+        if st.st_size > max_bytes:
+            raise PayloadTooLargeError(f"file has {st.st_size} bytes > max_bytes={max_bytes}")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise UnsupportedImageError(f"cannot read {shown!r}: {exc.strerror}") from exc
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise PayloadTooLargeError(f"file has more than max_bytes={max_bytes} bytes")
+    return data

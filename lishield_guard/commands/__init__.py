@@ -4,13 +4,32 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-__all__ = ["ExitCode"]
+__all__ = ["EXIT_CODES_HELP", "ExitCode"]
+
+
+EXIT_CODES_HELP = ("Exit status: 0 every image clean (or the command succeeded); 1 at least one "
+                   "image protected (wins over errors); 2 usage error (bad arguments, config or "
+                   "input path); 3 no image protected but input errors or undetermined "
+                   "results present (images that could not be looked at), or the command "
+                   "failed.")
 
 
 class ExitCode(IntEnum):
-    """Process exit codes of the CLI."""
+    """Process exit codes of every command (one table; `EXIT_CODES_HELP` in command help).
 
-    CLEAN = 0  # no barcode found (or the command succeeded)
-    PROTECTED = 1  # a barcode was found
-    USAGE = 2  # bad arguments, bad config, unreadable input
-    ERROR = 3  # the command failed for another reason
+    ====  ==========  ====================================================================
+    code  name        meaning
+    ====  ==========  ====================================================================
+    0     CLEAN       every image analysed and clean (or the command succeeded)
+    1     PROTECTED   at least one image carries a policy barcode; wins over errors
+    2     USAGE       bad arguments, bad config, missing input path
+    3     ERROR       no image protected, but input errors or undetermined results are
+                      present (a tool that could not look never says clean), or the
+                      command failed for another reason
+    ====  ==========  ====================================================================
+    """
+
+    CLEAN = 0
+    PROTECTED = 1
+    USAGE = 2
+    ERROR = 3

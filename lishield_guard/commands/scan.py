@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import sys
 import threading
 import time
@@ -14,7 +15,7 @@ import typer
 from lishield_guard.commands import ExitCode
 from lishield_guard.errors import LishieldError
 
-__all__ = ["register", "scan_command"]
+__all__ = ["exit_code_for", "register", "scan_command"]
 
 
 def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
@@ -30,19 +31,54 @@ def _read_list(src: str) -> list[str]:
     return [ln.rstrip("\r") for ln in text.splitlines() if ln.strip()]
 
 
-def _summary(counts: Counter, codes: Counter, n_resumed: int, elapsed_s: float) -> str:
-    n = counts["protected"] + counts["clean"] + counts["error"]
-    n_img = counts["protected"] + counts["clean"]
+def exit_code_for(counts: Counter, *, fail_on_error: bool = True) -> ExitCode:
+    """The scan's exit code from record counts by status (see `ExitCode`).
+
+    Protected wins over errors; errors and undetermined results give 3 unless
+    ``fail_on_error`` is False.
+
+    Examples
+    --------
+    >>> int(exit_code_for(Counter(clean=5, error=2)))
+    3
+    >>> int(exit_code_for(Counter(protected=1, error=2)))
+    1
+    """
+    if counts["protected"]:
+        return ExitCode.PROTECTED
+    if fail_on_error and (counts["error"] or counts["undetermined"]):
+        return ExitCode.ERROR
+    return ExitCode.CLEAN
+
+
+def _summary(counts: Counter, codes: Counter, n_resumed: int, n_ignored: int,
+             elapsed_s: float, whole: Counter | None) -> str:
+    n = sum(counts[k] for k in ("protected", "clean", "undetermined", "error"))
+    n_img = counts["protected"] + counts["clean"] + counts["undetermined"]
     rate = n_img / elapsed_s if elapsed_s > 0 else 0.0
     parts = [f"scanned {n} input(s) in {elapsed_s:.1f} s ({rate:.1f} images/s):",
              f"{counts['protected']} protected, {counts['clean']} clean, "
-             f"{counts['error']} error/skipped"]
+             f"{counts['undetermined']} undetermined, {counts['error']} error/skipped"]
+    if n_ignored:
+        parts.append(f"({n_ignored} non-image file(s) ignored)")
     if n_resumed:
         parts.append(f"({n_resumed} already recorded, not rescanned)")
     text = " ".join(parts)
+    if whole is not None:
+        text += (f"\n  whole output file: {whole['protected']} protected, {whole['clean']} "
+                 f"clean, {whole['undetermined']} undetermined, {whole['error']} error/skipped")
     if codes:
         text += "\n  by code: " + ", ".join(f"{c}={k}" for c, k in codes.most_common())
     return text
+
+
+def _is_regular_or_missing(path: str) -> bool:
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return False
 
 
 def scan_command(
@@ -66,14 +102,48 @@ def scan_command(
                                          help="Run on an existing Dask scheduler."),
     config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
     profile: str | None = typer.Option(None, "--profile", help="Detector profile: default|paper."),
+    progress: bool | None = typer.Option(None, "--progress/--no-progress",
+                                         help="Progress bar on stderr (default: when stderr "
+                                         "is a terminal)."),
+    fail_on_error: bool = typer.Option(True, "--fail-on-error/--no-fail-on-error",
+                                       help="Exit 3 when, with nothing protected, records "
+                                       "hold input errors or undetermined results (default); "
+                                       "--no-fail-on-error exits 0 then."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Scan many images; one record per input (JSON Lines or CSV), written as results arrive.
 
-    Exit status: 0 when nothing is protected, 1 when at least one image is, 2 on usage errors.
+    Each record has a status: protected, clean, undetermined (the detector could not look,
+    e.g. an image under 64 lines on every axis) or error. Folders and archives are searched
+    for images by name and by signature (sidecars and hidden non-images are ignored); only
+    regular files are read. The exit status covers the whole output file, records of earlier
+    runs included after --resume.
+
+    \b
+    Exit status (one table for every command):
+      0  every record clean
+      1  at least one image protected (wins over errors)
+      2  usage error
+      3  nothing protected, but input errors or undetermined results present
+         (0 with --no-fail-on-error)
+
+    Examples:
+
+    \b
+        lishield-guard scan photos/ -o out.jsonl -j 4
+        lishield-guard scan archive.tar.gz -o out.jsonl --resume --no-progress
+        lishield-guard scan --from-list paths.txt --include '*.jpg' -o out.csv --format csv
     """
     from lishield_guard.commands.detect import resolve_config
-    from lishield_guard.scan import RecordWriter, filter_new, iter_items, read_done_keys, run_scan
+    from lishield_guard.scan import (
+        RecordWriter,
+        filter_new,
+        iter_items,
+        read_done_keys,
+        record_status,
+        run_scan,
+        tally_file,
+    )
 
     if fmt not in ("jsonl", "csv"):
         raise _fail(f"--format must be jsonl or csv, got {fmt!r}")
@@ -81,8 +151,8 @@ def scan_command(
         raise _fail(f"--dask only accepts 'local', got {dask!r} (use --scheduler for a cluster)")
     if dask and scheduler:
         raise _fail("use either --dask local or --scheduler, not both")
-    if resume and output == "-":
-        raise _fail("--resume needs --output FILE")
+    if resume and (output == "-" or not _is_regular_or_missing(output)):
+        raise _fail("--resume needs --output FILE (a regular file)")
     if jobs < 0:
         raise _fail(f"--jobs must be >= 1, got {jobs}")
     jobs = jobs or os.cpu_count() or 1
@@ -98,7 +168,8 @@ def scan_command(
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
         raise _fail(str(exc)) from None
-    if output != "-" and not resume and os.path.exists(output) and os.path.getsize(output):
+    if (output != "-" and not resume and os.path.isfile(output)
+            and os.path.getsize(output)):  # /dev/stdout, pipes and ttys are written as they are
         raise _fail(f"{output!r} exists; use --resume to continue it, or remove it")
 
     done: set[str] = read_done_keys(output, fmt) if resume else set()
@@ -110,10 +181,16 @@ def scan_command(
         if bar is not None:  # counted in the total, so the bar still reaches 100 %
             bar.update(1)
 
-    kw = {"include": include, "exclude": exclude, "max_bytes": cfg.limits.max_bytes}
-    items = filter_new(iter_items(inputs, **kw), done, on_skip)
+    n_ignored = 0
 
-    show = not quiet and sys.stderr.isatty()
+    def on_ignored(_label: str) -> None:
+        nonlocal n_ignored
+        n_ignored += 1
+
+    kw = {"include": include, "exclude": exclude, "max_bytes": cfg.limits.max_bytes}
+    items = filter_new(iter_items(inputs, **kw, on_ignored=on_ignored), done, on_skip)
+
+    show = not quiet and (sys.stderr.isatty() if progress is None else progress)
     bar = None
     if show:
         from tqdm import tqdm
@@ -151,13 +228,10 @@ def scan_command(
         with RecordWriter(None if output == "-" else output, fmt) as writer:
             for rec in run_scan(items, config=cfg, jobs=jobs, client=client):
                 writer.write(rec)
-                if rec["error"] is not None:
-                    counts["error"] += 1
+                status = record_status(rec)
+                counts[status] += 1
+                if status == "error":
                     codes[rec["code"]] += 1
-                elif rec["protected"]:
-                    counts["protected"] += 1
-                else:
-                    counts["clean"] += 1
                 if bar is not None:
                     bar.update(1)
     except OSError as exc:
@@ -171,9 +245,14 @@ def scan_command(
             client.close()
         if cluster is not None:
             cluster.close()
+    whole = None
+    if output != "-" and os.path.isfile(output):  # the whole file: earlier runs' records too
+        whole = tally_file(output, fmt)
     if not quiet:
-        typer.echo(_summary(counts, codes, n_resumed, time.perf_counter() - t0), err=True)
-    raise typer.Exit(int(ExitCode.PROTECTED if counts["protected"] else ExitCode.CLEAN))
+        typer.echo(_summary(counts, codes, n_resumed, n_ignored, time.perf_counter() - t0,
+                            whole if resume else None), err=True)
+    raise typer.Exit(int(exit_code_for(whole if whole is not None else counts,
+                                       fail_on_error=fail_on_error)))
 
 
 def register(app: typer.Typer) -> None:
