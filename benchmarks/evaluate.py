@@ -6,7 +6,9 @@ emitter that played them (issue 21): ``f_B:200`` / ``f_B:between`` / ``f_B:f1`` 
 ``order:0,1,2`` ... (slot order) and ``order-kind:ascending`` / ``descending`` / ``other``, and
 the ``nominal`` sub-mix (no attack, full coverage, ambient <= 1, exposure < half a slot) per
 mono/RGB and per band. ``legacy-emitter`` holds the emitters the firmware-only mix drew before
-(f_B / M > 80 Hz, f_B <= f_1, restart phase, ascending order). Every rate comes with its exact
+(f_B / M > 80 Hz, f_B <= f_1, restart phase, ascending order) and ``f_B/M>80Hz`` every
+positive inside our firmware's flicker rule (for paired comparisons with detectors that only
+knew those). Every rate comes with its exact
 (Clopper-Pearson) 95% interval.
 
     python benchmarks/evaluate.py out/dev21 --profiles default --limit 100 \
@@ -70,7 +72,8 @@ def emitter(item: dict) -> dict | None:
     legacy = bool(f_b / m > FLICKER_RULE_HZ and f_b <= f1 * (1 + 1e-9)
                   and phase == "restart" and kind == "ascending")
     return {"f_b_band": band, "phase_mode": phase, "slot_order": order,
-            "slot_order_kind": kind, "nominal": bool(nominal), "legacy": legacy}
+            "slot_order_kind": kind, "nominal": bool(nominal), "legacy": legacy,
+            "within_flicker_rule": bool(f_b / m > FLICKER_RULE_HZ)}
 
 
 def kinds(item: dict) -> list[str]:
@@ -89,6 +92,8 @@ def kinds(item: dict) -> list[str]:
                     f"nominal:{colour}:f_B:{em['f_b_band']}"]
         if em["legacy"]:
             out.append("legacy-emitter")
+        if em["within_flicker_rule"]:
+            out.append("f_B/M>80Hz")
         if item.get("exposure_s", 0.0) >= 1.0 / float(item.get("switching_hz") or 1e9):
             out.append("exposure>=slot")
     if item.get("scene_kind"):

@@ -43,7 +43,9 @@ positives (no attack; no coverage map, since there is no LED).
 
 Other mixes: ``mono`` and ``rgb`` (positives of one kind only), ``negatives-only`` (no
 positives allowed), ``easy`` (no attack, no ambient light, full coverage, no downscale or
-rotation). Any field can be overridden with `Mix.with_overrides` (CLI ``--set key=value``).
+rotation), ``nominal`` (every positive in the nominal sub-mix: no attack, full coverage,
+ambient <= 1, exposure log-uniform below half a slot; ``exposure_max_slot_frac``). Any field
+can be overridden with `Mix.with_overrides` (CLI ``--set key=value``).
 """
 
 from __future__ import annotations
@@ -115,6 +117,7 @@ class Mix:
     order_probs: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3)
     rise_frac_range: tuple[float, float] = (0.0, 0.05)
     exposure_range_s: tuple[float, float] = (1 / 8000, 1 / 30)
+    exposure_max_slot_frac: float = 0.0
     attack_prob: float = 0.2
     attack_max_k: int = 3
     attack_range_s: tuple[float, float] = (1 / 8000, 1 / 200)
@@ -206,6 +209,8 @@ MIXES: dict[str, Mix] = {
     "negatives-only": Mix(name="negatives-only", allow_positives=False),
     "easy": Mix(name="easy", attack_prob=0.0, ambient_zero_prob=1.0, partial_coverage_prob=0.0,
                 downscale_prob=0.0, rotate_prob=0.0),
+    "nominal": Mix(name="nominal", attack_prob=0.0, partial_coverage_prob=0.0,
+                   ambient_range=(0.1, 1.0), exposure_max_slot_frac=0.5),
 }
 
 
@@ -287,6 +292,11 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
                 exposure_s = k / f
                 p["attack"] = True
                 p["attacked_tone"] = {"channel": ch, "hz": f, "k": k}
+        if mix.exposure_max_slot_frac > 0 and not p["attack"]:
+            # a capture mix limited to short exposures (e.g. the nominal sub-mix): t_e below
+            # the given fraction of a slot; drawn only then, so other mixes keep their draws
+            hi = min(mix.exposure_range_s[1], mix.exposure_max_slot_frac / f_b) * (1 - 1e-9)
+            exposure_s = _log_uniform(rng, min(mix.exposure_range_s[0], hi), hi)
         p["light"] = {"kind": "led", "preset": spec.name, "switching_hz": f_b,
                       "phase": emitter["phase_mode"], "order": emitter["slot_order"],
                       "rise_s": emitter["rise_s"]}

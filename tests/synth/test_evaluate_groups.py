@@ -42,7 +42,8 @@ def test_old_manifests_get_emitter_fields(evaluate):
            "coverage": {"fraction": 1.0}, "ambient_ratio": 0.5, "exposure_s": 0.001}
     em = evaluate.emitter(old)
     assert em == {"f_b_band": "between", "phase_mode": "restart", "slot_order": [0, 1, 2],
-                  "slot_order_kind": "ascending", "nominal": True, "legacy": True}
+                  "slot_order_kind": "ascending", "nominal": True, "legacy": True,
+                  "within_flicker_rule": True}
     assert evaluate.emitter({**old, "switching_hz": 400.0})["f_b_band"] == "f1"
     assert evaluate.emitter({**old, "exposure_s": 0.002})["nominal"] is False
     assert evaluate.emitter({"label": 0, "kind": "steady"}) is None

@@ -151,6 +151,17 @@ def test_default_mix_covers_every_emitter_cell_in_60_draws():
     assert all(neg[k] is None for k in EMITTER_FIELDS) and neg["nominal"] is None
 
 
+def test_nominal_mix_is_all_nominal():
+    pos = [sample_item(1, seed=item_seed(9, i), mix=MIXES["nominal"], size=(1080, 1920))
+           for i in range(200)]
+    assert all(p["nominal"] for p in pos)
+    assert {p["f_b_band"] for p in pos} == {"200", "between", "f1", "beyond"}
+    assert min(p["exposure_s"] for p in pos) >= 1 / 8000
+    # the default mix's draws do not depend on the new field
+    d = sample_item(1, seed=5, mix=MIXES["default"], size=(64, 96))
+    assert d == sample_item(1, seed=5, mix=Mix(exposure_max_slot_frac=0.0), size=(64, 96))
+
+
 def test_emitter_helpers():
     assert f_b_band(200.0, 400.0) == "200" and f_b_band(400.0, 400.0) == "f1"
     assert f_b_band(300.0, 400.0) == "between"
