@@ -7,20 +7,99 @@ Each command group lives in ``lishield_guard/commands/<group>.py`` and imports `
 from __future__ import annotations
 
 import importlib
+from typing import Annotated
 
 import typer
+import typer.core
 
 __all__ = ["app", "main"]
 
+
+def _tidy_help() -> None:
+    """Help text as a reader expects it, whatever Typer version renders it:
+
+    - on/off flags show no value type (Typer prints a fake ``<bool>``), and arguments that name
+      their own metavar (``IMG...``) no ``<list[str]>``;
+    - prose paragraphs of a docstring are re-flowed (Typer keeps the source's line breaks), while
+      a paragraph with indented lines (an ``Examples:`` block) keeps its lines and indentation.
+    """
+    import inspect
+
+    option, argument = (getattr(typer.core, "TyperOption", None),
+                        getattr(typer.core, "TyperArgument", None))
+    if option is not None and hasattr(option, "display_type_rich"):
+        shown = option.display_type_rich
+
+        def option_type(self, ctx):
+            return None if (self.is_flag or self.count) else shown(self, ctx)
+
+        option.display_type_rich = option_type
+    if argument is not None and hasattr(argument, "display_type_rich"):
+        shown_arg = argument.display_type_rich
+
+        def argument_type(self, ctx):
+            return None if self.metavar else shown_arg(self, ctx)
+
+        argument.display_type_rich = argument_type
+    try:
+        import typer.rich_utils as rich_utils
+    except ImportError:  # Rich not installed: click's own formatter re-flows paragraphs
+        return
+    if not (hasattr(rich_utils, "_fix_linebreaks")
+            and len(inspect.signature(rich_utils._fix_linebreaks).parameters) == 2):
+        return
+
+    def fix_linebreaks(paragraphs, markup_mode):
+        out = []
+        for para in paragraphs:
+            lines = para.split("\n")
+            if any(ln[:1].isspace() for ln in lines[1:] if ln.strip()):
+                out.append(para)  # an indented block: keep it as written
+            else:
+                out.append(" ".join(ln.strip() for ln in lines))
+        # a leading newline keeps inspect.cleandoc (run on this text) from removing the
+        # indentation of an Examples block that comes first
+        return "\n" + "\n\n".join(out)
+
+    rich_utils._fix_linebreaks = fix_linebreaks
+
+
+_tidy_help()
+
 app = typer.Typer(
     name="lishield-guard",
-    help="Find LiShield privacy barcodes (LED flicker stripes) in photos, screen uploads over "
-    "HTTP, scan archives, calibrate false-alarm rates, and generate barcodes, LED firmware and "
-    "synthetic captures.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+def _version(value: bool) -> None:
+    if value:
+        from lishield_guard import __version__
+
+        typer.echo(f"lishield-guard {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                          help="Print the version and exit.")] = False,
+) -> None:
+    """Find LiShield privacy barcodes (LED flicker stripes) in photos, screen uploads over
+    HTTP, scan archives, calibrate false-alarm rates, and generate barcodes, LED firmware and
+    synthetic captures.
+
+    Every command takes --config FILE.toml (default: the shipped calibrated config). Exit
+    status: 0 clean, 1 barcode found, 2 usage or input error. Documentation: README.md and
+    docs/ in the source tree.
+
+    Examples:
+      lishield-guard detect photo.jpg --plot verdict.png
+      lishield-guard scan /photos --output results.jsonl --jobs 4
+      lishield-guard serve --port 8000
+    """
 
 # Modules under lishield_guard/commands that register commands, in help order.
 COMMAND_MODULES = ("detect", "scan", "serve", "calibrate", "bench", "spec", "firmware", "synth",

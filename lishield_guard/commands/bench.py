@@ -89,8 +89,8 @@ def bench_command(
                                f"15 s timing budget, 3 paired runs of default per target image."),
     out: Path = typer.Option(Path("out/bench"), "--out", help="Output folder."),
     profiles: list[str] = typer.Option([], "--profiles", metavar="NAME[,NAME...]",
-                                       help="Settings to run (default all): paper, default, "
-                                            "default-ref, fast, fast-half."),
+                                       help="Settings to run, comma-separated (default all): "
+                                            "paper, default, default-ref, fast, fast-half."),
     repeat: int = typer.Option(1, "--repeat", help="Interleaved runs per dataset image."),
     jobs: int = typer.Option(1, "--jobs", "-j",
                              help="Worker processes for the dataset (each image is still "
@@ -116,6 +116,10 @@ def bench_command(
     """Time detector settings against Pillow's full RGB decode and report TPR/FPR per setting.
 
     Writes bench.json, bench.csv and bench.png (time ratio vs error, Pareto front) to --out.
+
+    Examples:
+      lishield-guard bench --quick
+      lishield-guard bench --dataset eval --profiles default,paper --jobs 2
     """
     from tqdm import tqdm
 

@@ -1,13 +1,14 @@
-"""`lishield-guard detect IMG`: one verdict in words or JSON, optionally with a spectrum plot."""
+"""`lishield-guard detect IMG...`: verdicts in words or JSON, optionally with the figure of what
+decided them."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
+from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 
@@ -15,9 +16,17 @@ from lishield_guard.commands import ExitCode
 from lishield_guard.config import AppConfig
 from lishield_guard.errors import ConfigError, LishieldError
 
-__all__ = ["detect_command", "plot_verdict", "register", "resolve_config"]
+__all__ = ["PROFILES", "Profile", "detect_command", "plot_verdict", "register", "resolve_config"]
 
-PROFILES = ("default", "paper")
+
+class Profile(StrEnum):
+    """Detector profiles (`DetectorConfig.profile`)."""
+
+    default = "default"
+    paper = "paper"
+
+
+PROFILES = tuple(p.value for p in Profile)
 
 
 def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
@@ -47,10 +56,13 @@ def _describe(v, label: str, *, explain: bool) -> str:
     d = v.to_dict()
     ev = v.evidence or {}
     lines = []
-    if v.protected:
+    status = getattr(v, "status", "protected" if v.protected else "clean")
+    if status == "protected":
         lines.append(f"{label}: PROTECTED by policy {v.policy!r}")
+    elif status == "undetermined":
+        lines.append(f"{label}: UNDETERMINED (the detector could not look; not clean)")
     else:
-        lines.append(f"{label}: not protected (no policy barcode found)")
+        lines.append(f"{label}: clean, not protected (no policy barcode found)")
     unit = "ratios" if v.profile == "paper" else "tones"
     lines.append(f"  matches: {v.matches}/{v.required} {unit} required  "
                  f"score: {v.score:.3f}  profile: {v.profile}")
@@ -94,141 +106,113 @@ def _describe(v, label: str, *, explain: bool) -> str:
     return "\n".join(lines)
 
 
-def _best_axis(ev: dict) -> int:
-    best = ev.get("best") or {}
-    for c in ev.get("candidates", []):
-        if c.get("spec") == best.get("spec") and c.get("matched_hz") == best.get("matched_hz"):
-            return 1 if c.get("axis") == "columns" else 0
-    return 0
-
-
-def _tone_marks_cpr(v, config: AppConfig) -> list[tuple[str, float, float]]:
-    """(channel, Hz, cycles/row) of every matched or detected tone in the evidence."""
-    ev = v.evidence or {}
-    marks = []
-    if v.profile == "paper":
-        rate = config.detector.nominal_row_rate_hz
-        marks = [("W", f, f / rate) for f in ev.get("frequencies_hz", [])]
-    else:
-        best = ev.get("best") or {}
-        sigma = best.get("sigma_cpr_per_hz") or 0.0
-        for ch, hz in (best.get("matched_hz") or {}).items():
-            marks.extend((ch, f, f * sigma) for f in hz)
-    return marks
-
-
 def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path:
-    """Draw row profiles, their spectrum and the matched tones of one verdict to a PNG.
+    """Write the verdict's figure (`lishield_guard.plot.plot_verdict`) to ``out_png``."""
+    from lishield_guard.plot import plot_verdict as _plot
 
-    Parameters
-    ----------
-    source : bytes, str or Path
-        The image the verdict was computed on.
-    verdict : Verdict
-        Its verdict (evidence gives the tones and their scale).
-    config : AppConfig
-        Config of the detection (block count, band, nominal row rate).
-    out_png : Path
-        Where to write the figure.
-    """
-    import matplotlib
+    return _plot(source, verdict, config, out_png)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
 
-    from lishield_guard.barcode import scale_range_cpr_per_hz
-    from lishield_guard.decode import decode
-    from lishield_guard.profile import block_row_profiles, detrend_profiles
+PROFILE_HELP = ("default: the calibrated detector (use this). paper: the paper's Algorithm 1 "
+                "as published, a reference for comparisons that flags about 95 % of photos taken "
+                "under ordinary flickering light; not a production choice.")
 
-    det = config.detector
-    decoded = decode(source, limits=config.limits)
-    axis = _best_axis(verdict.evidence or {}) if verdict.profile == "default" else 0
-    profiles = block_row_profiles(decoded.luma, n_col_blocks=det.n_col_blocks, axis=axis)
-    n_rows = profiles.shape[1]
-    freqs_hz = [f for p in config.policies for s in p.specs for f in s.all_freqs_hz]
-    lo_cpr = min(freqs_hz) * scale_range_cpr_per_hz(det)[0] if freqs_hz else 0.0
-    sigma_rows = min(0.5 / lo_cpr if lo_cpr > 0 else n_rows, n_rows / 6.0)
-    contrast, _ = detrend_profiles(profiles, sigma_rows=sigma_rows)
-    n_fft = 1 << int(math.ceil(math.log2(max(n_rows, 2)))) + 1
-    win = np.hanning(n_rows)
-    power = np.abs(np.fft.rfft(contrast * win, n=n_fft, axis=-1)) ** 2
-    f_cpr = np.fft.rfftfreq(n_fft)
 
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10, 7), constrained_layout=True)
-    rows = np.arange(n_rows)
-    for b in range(contrast.shape[0]):
-        ax0.plot(rows, contrast[b] * 100, lw=0.5, alpha=0.35)
-    ax0.plot(rows, contrast.mean(axis=0) * 100, color="k", lw=0.8, label="mean of blocks")
-    ax0.set_xlabel("sensor row" if axis == 0 else "sensor row (image columns)")
-    ax0.set_ylabel("contrast (%)")
-    ax0.set_title(f"Detrended row profiles ({contrast.shape[0]} column blocks)")
-    ax0.legend(loc="upper right")
-    for b in range(power.shape[0]):
-        ax1.semilogy(f_cpr, power[b] + 1e-20, lw=0.4, alpha=0.3)
-    ax1.semilogy(f_cpr, power.mean(axis=0) + 1e-20, color="k", lw=0.8, label="mean power")
-    colours = {"W": "tab:purple", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
-    seen = set()
-    for ch, hz, cpr in _tone_marks_cpr(verdict, config):
-        lab = None if ch in seen else f"{ch} tones"
-        seen.add(ch)
-        ax1.axvline(cpr, color=colours.get(ch, "tab:orange"), ls="--", lw=1, label=lab)
-        ax1.annotate(f"{hz:g} Hz", (cpr, 0.95), xycoords=("data", "axes fraction"),
-                     rotation=90, va="top", fontsize=8)
-    ax1.set_xlim(0, 0.5)
-    ax1.set_xlabel("frequency (cycles per row)")
-    ax1.set_ylabel("power (a.u.)")
-    state = f"PROTECTED ({verdict.policy})" if verdict.protected else "not protected"
-    ax1.set_title(f"Spectrum: {state}, {verdict.matches}/{verdict.required} "
-                  f"[{verdict.profile} profile]")
-    ax1.legend(loc="upper right")
-    fig.savefig(out_png, dpi=100)
-    plt.close(fig)
-    return out_png
+def _exit_code(verdict) -> ExitCode:
+    status = getattr(verdict, "status", "protected" if verdict.protected else "clean")
+    if status == "protected":
+        return ExitCode.PROTECTED
+    if status == "undetermined":  # fail closed: never "clean"
+        return getattr(ExitCode, "UNDETERMINED", ExitCode.ERROR)
+    return ExitCode.CLEAN
+
+
+def _plot_path(plot: Path, label: str, several: bool) -> Path:
+    if not several:
+        return plot
+    plot.mkdir(parents=True, exist_ok=True)
+    return plot / f"{Path(label).stem}.png"
 
 
 def detect_command(
-    image: str = typer.Argument(..., metavar="IMG", help="Image file, or - for stdin bytes."),
-    explain: bool = typer.Option(False, "--explain", help="Also print the evidence."),
-    plot: Path | None = typer.Option(None, "--plot", metavar="FILE.png",
-                                     help="Write row profiles and spectrum with matched tones."),
-    config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
-    profile: str | None = typer.Option(None, "--profile", help="Detector profile: default|paper."),
-    as_json: bool = typer.Option(False, "--json", help="Print Verdict.to_dict() as JSON."),
+    images: Annotated[list[str], typer.Argument(
+        metavar="IMG...", show_default=False,
+        help="Image files (JPEG, PNG, WebP, TIFF, BMP, HEIC), or - for one image on stdin. "
+             "For folders and archives use `lishield-guard scan`.")],
+    explain: Annotated[bool, typer.Option("--explain", help="Also print the evidence: fitted "
+                                          "parameters, tones, every candidate.")] = False,
+    plot: Annotated[Path | None, typer.Option(
+        "--plot", metavar="FILE.png|DIR",
+        help="Write the figure of what decided the verdict: fitted rows with the template and "
+             "the look-alike, thresholds, spectrum. With several images: a folder, one "
+             "IMG-stem.png each.")] = None,
+    config: Annotated[Path | None, typer.Option(
+        "--config", metavar="FILE.toml", help="Config (default: the shipped one).")] = None,
+    profile: Annotated[Profile | None, typer.Option(
+        "--profile", help=PROFILE_HELP, show_default=False)] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print one JSON object per image (Verdict.to_dict() plus path).")] = False,
 ) -> None:
-    """Decide whether one image carries a policy barcode (exit 1 protected, 0 not, 2 bad input)."""
+    """Decide whether images carry a policy barcode; print the verdict and its reason.
+
+    Exit status: 0 all clean, 1 at least one protected, 2 bad usage or an unreadable image,
+    3 undetermined or internal error. Folders and archives: `lishield-guard scan`.
+
+    Examples:
+      lishield-guard detect photo.jpg
+      lishield-guard detect a.jpg b.png --json
+      lishield-guard detect photo.jpg --explain --plot verdict.png
+    """
     from lishield_guard.detect import detect
 
     try:
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
         raise _fail(str(exc)) from None
-    if image == "-":
-        source: Any = sys.stdin.buffer.read()
-        label = "<stdin>"
-    else:
-        if not Path(image).is_file():
+    if "-" in images and len(images) > 1:
+        raise _fail("- (stdin) reads one image; give files instead, or pipe one image")
+    for image in images:
+        if image != "-" and Path(image).is_dir():
+            raise _fail(f"{image!r} is a folder; scan folders and archives with "
+                        f"`lishield-guard scan {image}`")
+        if image != "-" and not Path(image).is_file():
             raise _fail(f"no such file: {image!r}")
-        source, label = image, image
-    try:
-        verdict = detect(source, cfg)
-    except LishieldError as exc:
-        raise _fail(f"{label}: {exc} [{exc.code}]") from None
-    except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
-        raise _fail(f"{label}: internal error: {type(exc).__name__}: {exc}",
-                    ExitCode.ERROR) from None
-    if as_json:
-        typer.echo(json.dumps(verdict.to_dict(), indent=2))
-    else:
-        typer.echo(_describe(verdict, label, explain=explain))
-    if plot is not None:
+    several = len(images) > 1
+    codes: list[ExitCode] = []
+    for image in images:
+        if image == "-":
+            source: Any = sys.stdin.buffer.read()
+            label = "<stdin>"
+        else:
+            source, label = image, image
         try:
-            plot_verdict(source, verdict, cfg, plot)
-        except OSError as exc:
-            raise _fail(f"cannot write plot {str(plot)!r}: {exc.strerror}", ExitCode.ERROR) \
-                from None
-        typer.echo(f"plot written to {plot}", err=True)
-    raise typer.Exit(int(ExitCode.PROTECTED if verdict.protected else ExitCode.CLEAN))
+            verdict = detect(source, cfg)
+        except LishieldError as exc:
+            typer.echo(f"error: {label}: {exc} [{exc.code}]", err=True)
+            codes.append(ExitCode.USAGE)
+            continue
+        except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
+            typer.echo(f"error: {label}: internal error: {type(exc).__name__}: {exc}", err=True)
+            codes.append(ExitCode.ERROR)
+            continue
+        if as_json:
+            typer.echo(json.dumps({"path": label, **verdict.to_dict()}))
+        else:
+            typer.echo(_describe(verdict, label, explain=explain))
+        if plot is not None:
+            out = _plot_path(plot, label, several)
+            try:
+                plot_verdict(source, verdict, cfg, out)
+            except OSError as exc:
+                raise _fail(f"cannot write plot {str(out)!r}: {exc.strerror}", ExitCode.ERROR) \
+                    from None
+            typer.echo(f"plot written to {out}", err=True)
+        codes.append(_exit_code(verdict))
+    # the most important outcome wins: protected, then bad input, then anything not clean
+    for code in (ExitCode.PROTECTED, ExitCode.USAGE):
+        if code in codes:
+            raise typer.Exit(int(code))
+    raise typer.Exit(max((int(c) for c in codes), default=int(ExitCode.CLEAN)))
 
 
 def register(app: typer.Typer) -> None:

@@ -120,7 +120,11 @@ def firmware_cmd(
 
     The secret for intensity randomization (specs with intensity_levels > 1) is read from an
     environment variable (--seed-env) or a file (--seed-file), never from the command line,
-    and is printed nowhere.
+    and is printed nowhere. Specs and formats: docs/firmware.md.
+
+    Examples:
+      lishield-guard firmware table1-seq1 --format c -o lishield_seq.h
+      lishield-guard firmware venue.toml -f bin -o seq.bin --seed-env SECRET
     """
     from firmware.emit import to_binary, to_c_header, to_json  # lazy: core never imports firmware
     from firmware.sequence import achieved_report, compile_spec

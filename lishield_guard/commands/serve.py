@@ -15,6 +15,26 @@ __all__ = ["register", "serve"]
 TOKEN_ENV_DEFAULT = "LISHIELD_API_TOKEN"
 
 
+def _port_busy(host: str, port: int) -> str | None:
+    """Why ``host:port`` cannot be bound (e.g. "address already in use"), or None."""
+    import socket
+
+    if port == 0:
+        return None
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        return f"cannot resolve host: {exc}"
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            return (exc.strerror or str(exc)).lower()
+    return None
+
+
 def serve(
     host: Annotated[str, typer.Option(help="Interface to bind.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port.", min=0, max=65535)] = 8000,
@@ -26,10 +46,16 @@ def serve(
                                            "token for /v1 routes (unset or empty: no auth).")
                          ] = TOKEN_ENV_DEFAULT,
 ) -> None:
-    """Serve POST /v1/screen, /v1/screen/batch, /v1/policies, /healthz, /readyz and /metrics.
+    """Serve the screening API (POST /v1/screen) and a reviewer page (/review).
 
-    Other settings come from LISHIELD_* environment variables (LISHIELD_MAX_UPLOAD_BYTES,
-    LISHIELD_MAX_CONCURRENCY, LISHIELD_MAX_QUEUE, LISHIELD_DETECT_TIMEOUT_S, ...).
+    Also /v1/screen/batch, /v1/screen/plot, /v1/policies, /healthz, /readyz, /metrics and
+    /docs. Other settings come from LISHIELD_* environment variables (LISHIELD_MAX_UPLOAD_BYTES,
+    LISHIELD_MAX_CONCURRENCY, LISHIELD_MAX_QUEUE, LISHIELD_DETECT_TIMEOUT_S, ...); see
+    docs/service.md.
+
+    Examples:
+      lishield-guard serve --port 8000
+      LISHIELD_API_TOKEN=s3cret lishield-guard serve --host 0.0.0.0 --workers 2
     """
     import uvicorn
 
@@ -37,6 +63,11 @@ def serve(
     from service.app import create_app
     from service.settings import ServiceSettings
 
+    busy = _port_busy(host, port)
+    if busy:
+        typer.echo(f"error: cannot listen on {host}:{port}: {busy}; choose another with "
+                   f"--port, or stop what is listening there (e.g. `lsof -i :{port}`)", err=True)
+        raise typer.Exit(ExitCode.USAGE)
     if config is not None:
         os.environ["LISHIELD_CONFIG_PATH"] = str(config)
     token = os.environ.get(token_env, "")

@@ -153,7 +153,14 @@ def _fail(exc: Exception) -> typer.Exit:
 def list_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
 ) -> None:
-    """List the built-in barcode presets (paper Tables 1-3)."""
+    """List the built-in barcode presets (paper Tables 1-3).
+
+    Each line gives the preset's switching rate f_B and its tones per channel.
+
+    Examples:
+      lishield-guard spec list
+      lishield-guard spec list --json
+    """
     rows = [{"name": n, "channels": {c: list(fs) for c, fs in s.channels}, "f_b_hz": s.f_b_hz,
              "description": s.description} for n, s in PRESETS.items()]
     if as_json:
@@ -179,7 +186,12 @@ def show_cmd(
 ) -> None:
     """Show a spec's tones, switching rate, ratio set and every validation rule's status.
 
-    Exits 0 when every hard rule passes (warnings allowed), 2 when one fails.
+    Exits 0 when every hard rule passes (warnings allowed), 2 when one fails. The spec file
+    format is described in docs/firmware.md.
+
+    Examples:
+      lishield-guard spec show table1-seq1
+      lishield-guard spec show venue.toml --ratio-tol 0.03 --json
     """
     try:
         s = spec_summary(load_spec_arg(spec), ratio_tol=ratio_tol,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 
 import typer
@@ -9,9 +10,35 @@ import typer
 from lishield_guard.commands import ExitCode
 from lishield_guard.errors import LishieldError
 
-__all__ = ["register"]
+__all__ = ["Phase", "Rotation", "Subsampling", "register"]
 
 ROTATIONS = (0, 90, 180, 270)
+
+
+class Rotation(StrEnum):
+    """Clockwise rotations of a capture, degrees."""
+
+    r0 = "0"
+    r90 = "90"
+    r180 = "180"
+    r270 = "270"
+
+
+class Subsampling(StrEnum):
+    """JPEG chroma subsampling."""
+
+    s420 = "4:2:0"
+    s422 = "4:2:2"
+    s444 = "4:4:4"
+
+
+class Phase(StrEnum):
+    """Tone phase at a slot start (`BarcodeSpec.phase`)."""
+
+    restart = "restart"
+    continuous = "continuous"
+
+
 
 
 def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
@@ -34,8 +61,10 @@ def dataset(
     n_pos: int = typer.Option(0, "--n-pos", help="Number of barcode captures (label 1)."),
     n_neg: int = typer.Option(0, "--n-neg", help="Number of negatives (label 0)."),
     seed: int = typer.Option(0, "--seed", help="Dataset seed; output is byte-identical per seed."),
-    mix: str = typer.Option("default", "--mix",
-                            help="Parameter mix: default, mono, rgb, negatives-only, easy."),
+    mix: str = typer.Option("default", "--mix", metavar="MIX",
+                            help="Parameter mix: default, mono, rgb, negatives-only or easy "
+                                 "(documented in synth/dataset.py); fields can be overridden "
+                                 "with --set."),
     sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
                                    help="Override a mix field, e.g. --set attack_prob=0.5 or "
                                         "--set jpeg_quality_range=80,95. Repeatable."),
@@ -44,7 +73,15 @@ def dataset(
     progress: bool = typer.Option(True, "--progress/--no-progress",
                                   help="Progress bar on stderr."),
 ) -> None:
-    """Write a labelled dataset: NNNNNN.jpg images plus manifest.jsonl (one line per image)."""
+    """Write a labelled dataset: NNNNNN.jpg images plus manifest.jsonl (one line per image).
+
+    The output is byte-identical for a given seed, mix and size; the manifest records every
+    image's parameters (preset, exposure, ambient light, coverage, rotation, ...).
+
+    Examples:
+      lishield-guard synth dataset --out eval --n-pos 400 --n-neg 400 -j 2
+      lishield-guard synth dataset --out neg --n-neg 100 --mix negatives-only
+    """
     from synth.dataset import MIXES, parse_size, write_dataset
 
     try:
@@ -62,7 +99,9 @@ def dataset(
 
 
 def capture(
-    preset: str = typer.Option("table1-seq1", "--preset", help="Barcode preset name."),
+    preset: str = typer.Option("table1-seq1", "--preset", metavar="PRESET",
+                                  help="Barcode preset: table1-seq1..3, table2-rgb, "
+                                       "table3-m2..m6 (see `lishield-guard spec list`)."),
     scene: str = typer.Option("skimage:astronaut", "--scene",
                               help="Image file, skimage:NAME or texture:KIND."),
     output: Path = typer.Option(..., "-o", "--output", help="Output JPEG path."),
@@ -79,16 +118,16 @@ def capture(
                                    help="Lit fraction of the frame in (0, 1]; < 1 adds a "
                                         "smooth falloff around the frame centre."),
     jpeg_quality: int = typer.Option(90, "--jpeg-quality", help="JPEG quality 1-100."),
-    subsampling: str = typer.Option("4:2:0", "--subsampling", help="4:2:0, 4:2:2 or 4:4:4."),
+    subsampling: Subsampling = typer.Option(Subsampling.s420, "--subsampling",
+                                            help="JPEG chroma subsampling."),
     downscale: float = typer.Option(1.0, "--downscale", help="Downscale factor >= 1."),
-    rotate: int = typer.Option(0, "--rotate", help="Clockwise rotation: 0, 90, 180 or 270."),
+    rotate: Rotation = typer.Option(Rotation.r0, "--rotate", help="Clockwise rotation, degrees."),
     rotate_exif: bool = typer.Option(False, "--rotate-exif",
                                      help="Store the rotation as an EXIF tag, not in pixels."),
     size: str = typer.Option("1080p", "--size", help="1080p, 720p, 8mp, 12mp or WxH."),
     switching_hz: float | None = typer.Option(None, "--switching-hz",
                                               help="Override the preset's switching rate f_B."),
-    phase: str = typer.Option("restart", "--phase",
-                              help="Tone phase at a slot start: restart or continuous."),
+    phase: Phase = typer.Option(Phase.restart, "--phase", help="Tone phase at a slot start."),
     order: str | None = typer.Option(None, "--order",
                                      help="Slot order: cyclic, or tone indices like 2,1,0."),
     rise_s: float = typer.Option(0.0, "--rise-s", help="LED rise/fall time in seconds."),
@@ -97,7 +136,16 @@ def capture(
     plot: Path | None = typer.Option(None, "--plot",
                                      help="Also write a PNG: LED waveform, row profile, spectrum."),
 ) -> None:
-    """Render one capture of a scene under a barcode LED."""
+    """Render one capture of a scene under a barcode LED.
+
+    The LED plays the preset's firmware sequence; each row integrates it over its exposure
+    exactly, then noise, sRGB, rotation and JPEG follow. The capture's parameters are printed
+    on stderr.
+
+    Examples:
+      lishield-guard synth capture --scene skimage:coffee -o protected.jpg
+      lishield-guard synth capture --preset table2-rgb --rotate 90 -o rgb.jpg
+    """
     import dataclasses
 
     import numpy as np
@@ -112,6 +160,9 @@ def capture(
 
     if exposure_s is not None and auto:
         raise _fail("give either --exposure-s or --auto, not both")
+    phase = str(getattr(phase, "value", phase))
+    subsampling = str(getattr(subsampling, "value", subsampling))
+    rotate = int(getattr(rotate, "value", rotate))
     if rotate not in ROTATIONS:
         raise _fail(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
     if not 0.0 < coverage <= 1.0:
