@@ -16,10 +16,11 @@ Positives (label 1, kind ``"barcode"``):
   (200 Hz, f_1); 31%) or ``"beyond"`` (7%: half log-uniform in [170, 200) Hz, half
   f_1 * uniform(1, 1.2]); tone phase at a slot start ``restart`` or ``continuous`` (50/50);
   slot order ascending, descending or another fixed permutation (1/3 each); LED rise/fall
-  time uniform in 0-5% of the shortest half-period. Manifest fields ``switching_hz``,
-  ``f_b_band``, ``phase_mode``, ``slot_order``, ``slot_order_kind``, ``rise_frac``,
-  ``rise_s``; ``nominal`` is true for no attack, full coverage, ambient <= 1 and
-  t_e < half a slot;
+  time uniform in 0-5% of the shortest half-period; a continuous-phase emitter's firmware
+  loop holds 0.1 s of patterns (its tones run on across patterns, as a free-running LED's
+  would). Manifest fields ``switching_hz``, ``f_b_band``, ``phase_mode``, ``slot_order``,
+  ``slot_order_kind``, ``rise_frac``, ``rise_s``, ``loop_patterns``; ``nominal`` is true for
+  no attack, full coverage, ambient <= 1 and t_e < half a slot;
 - exposure log-uniform in [1/8000, 1/30] s (DESIGN.md, "Camera settings in the wild"); 20%
   manual-exposure attack: t_e = k / f with f one random tone of one channel and k uniform
   among 1..3 keeping t_e within [1/8000, 1/200] s;
@@ -116,6 +117,7 @@ class Mix:
     continuous_phase_prob: float = 0.5
     order_probs: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3)
     rise_frac_range: tuple[float, float] = (0.0, 0.05)
+    continuous_loop_s: float = 0.1
     exposure_range_s: tuple[float, float] = (1 / 8000, 1 / 30)
     exposure_max_slot_frac: float = 0.0
     attack_prob: float = 0.2
@@ -299,7 +301,7 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
             exposure_s = _log_uniform(rng, min(mix.exposure_range_s[0], hi), hi)
         p["light"] = {"kind": "led", "preset": spec.name, "switching_hz": f_b,
                       "phase": emitter["phase_mode"], "order": emitter["slot_order"],
-                      "rise_s": emitter["rise_s"]}
+                      "rise_s": emitter["rise_s"], "loop_patterns": emitter["loop_patterns"]}
     else:
         kind = NEGATIVE_KINDS[int(rng.choice(4, p=np.asarray(mix.negative_probs)))]
         p.update(kind=kind, preset=None, channels=["W"], switching_hz=None, tones_hz=None,
@@ -388,7 +390,7 @@ def slot_order_kind(order) -> str:
 
 
 EMITTER_FIELDS = ("switching_hz", "f_b_band", "phase_mode", "slot_order", "slot_order_kind",
-                  "rise_frac", "rise_s")
+                  "rise_frac", "rise_s", "loop_patterns")
 
 
 def sample_emitter(spec, *, rng: np.random.Generator, mix: Mix) -> dict:
@@ -410,7 +412,11 @@ def sample_emitter(spec, *, rng: np.random.Generator, mix: Mix) -> dict:
     dict
         JSON-ready: ``switching_hz`` (f_B, Hz, rounded to 0.01 Hz), ``f_b_band``, ``phase_mode``
         ("restart"/"continuous"), ``slot_order`` (list of tone indices), ``slot_order_kind``,
-        ``rise_frac`` (of the shortest half-period, unitless) and ``rise_s`` (seconds).
+        ``rise_frac`` (of the shortest half-period, unitless), ``rise_s`` (seconds) and
+        ``loop_patterns``: patterns in one firmware loop. A continuous-phase emitter's timers
+        run on for ``mix.continuous_loop_s`` (so within any frame consecutive patterns need not
+        repeat each other's phases, as with a free-running LED); restart emitters loop one
+        pattern.
     """
     f1 = spec.f1_hz
     low = mix.switching_min_hz
@@ -449,7 +455,9 @@ def sample_emitter(spec, *, rng: np.random.Generator, mix: Mix) -> dict:
     half_period_s = min(spec.duty, 1.0 - spec.duty) / spec.all_freqs_hz[-1]
     return {"switching_hz": f_b, "f_b_band": f_b_band(f_b, f1, low_hz=low),
             "phase_mode": phase, "slot_order": order, "slot_order_kind": slot_order_kind(order),
-            "rise_frac": rise_frac, "rise_s": rise_frac * half_period_s}
+            "rise_frac": rise_frac, "rise_s": rise_frac * half_period_s,
+            "loop_patterns": max(1, math.ceil(mix.continuous_loop_s * f_b / m))
+            if phase == "continuous" else 1}
 
 
 def real_photo_scenes() -> tuple[str, ...]:
@@ -483,7 +491,8 @@ def _make_light(p: dict):
                                    order=tuple(lt.get("order") or ()) or "cyclic")
         with warnings.catch_warnings():  # f_B = 200 Hz breaks our flicker rule, on purpose
             warnings.simplefilter("ignore", SpecWarning)
-            seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW)
+            seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW,
+                               n_patterns=int(lt.get("loop_patterns") or 1))
         return SequenceLight(seq, rise_s=float(lt.get("rise_s") or 0.0))
     if lt["kind"] == "mains":
         return MainsFlicker(supply_hz=lt["supply_hz"], depth=lt["depth"], phase_s=lt["phase_s"])

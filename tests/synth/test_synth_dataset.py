@@ -199,7 +199,14 @@ def test_rendered_emitter_is_what_the_manifest_says(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert light.sequence.same_steps(compile_spec(spec, clock_hz=ds.LED_CLOCK_HZ,
-                                                      allow=ds.EMITTER_ALLOW))
+                                                      allow=ds.EMITTER_ALLOW,
+                                                      n_patterns=p["loop_patterns"]))
+    # the continuous emitter's timers run on over 0.1 s of patterns: 200 Hz / 3 -> 7 patterns
+    assert p["loop_patterns"] == 7 and light.period_s == pytest.approx(7 * 3 / 200)
+    restart = next(q for i in range(50)
+                   if (q := sample_item(1, seed=i, mix=MIXES["default"], size=(64, 96)))[
+                       "phase_mode"] == "restart")
+    assert restart["loop_patterns"] == 1
 
 
 def test_real_photo_hook(monkeypatch, tmp_path):
