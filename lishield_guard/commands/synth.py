@@ -62,7 +62,8 @@ def dataset(
     n_neg: int = typer.Option(0, "--n-neg", help="Number of negatives (label 0)."),
     seed: int = typer.Option(0, "--seed", help="Dataset seed; output is byte-identical per seed."),
     mix: str = typer.Option("default", "--mix", metavar="MIX",
-                            help="Parameter mix: default, mono, rgb, negatives-only or easy "
+                            help="Parameter mix: default, mono, rgb, negatives-only, easy or "
+                                 "nominal "
                                  "(documented in synth/dataset.py); fields can be overridden "
                                  "with --set."),
     sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
@@ -131,6 +132,9 @@ def capture(
     order: str | None = typer.Option(None, "--order",
                                      help="Slot order: cyclic, or tone indices like 2,1,0."),
     rise_s: float = typer.Option(0.0, "--rise-s", help="LED rise/fall time in seconds."),
+    loop_patterns: int = typer.Option(1, "--loop-patterns", min=1,
+                                      help="Patterns in one firmware loop (with --phase "
+                                           "continuous the tones run on across them)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Disable shot and read noise."),
     seed: int = typer.Option(0, "--seed", help="Random seed (frame start and noise)."),
     plot: Path | None = typer.Option(None, "--plot",
@@ -183,8 +187,8 @@ def capture(
         if order is not None:
             spec = dataclasses.replace(spec, order=order if order in ("cyclic", "random") else
                                        tuple(int(i) for i in order.split(",") if i.strip()))
-        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW),
-                              rise_s=rise_s)
+        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW,
+                                           n_patterns=loop_patterns), rise_s=rise_s)
         n_rows, n_cols = parse_size(size)
         rng = np.random.default_rng(seed)
         refl = load_scene(scene, n_rows, n_cols)

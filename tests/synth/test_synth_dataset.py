@@ -292,7 +292,8 @@ def test_cli_capture_emitter_options(tmp_path):
     with pytest.warns(SpecWarning, match="flicker"):  # our firmware's rule, allowed here
         res = runner.invoke(_cli(), ["synth", "capture", "--preset", "table1-seq1",
                                      "--switching-hz", "200", "--phase", "continuous",
-                                     "--order", "2,1,0", "--rise-s", "2e-5", "--size",
+                                     "--order", "2,1,0", "--rise-s", "2e-5",
+                                     "--loop-patterns", "3", "--size",
                                      "160x120", "--exposure-s", "0.0005", "--seed", "1", "-o",
                                      str(out)])
     assert res.exit_code == 0, res.output
