@@ -1,0 +1,148 @@
+"""The reviewer's page and the verdict figure: ``GET /review``, ``POST /v1/review`` and
+``POST /v1/screen/plot``.
+
+A trust-and-safety reviewer opens ``/review`` in a browser, drops an image, and sees the
+verdict, its reason in words, and the figure of what decided it (`lishield_guard.plot`). The
+page and its two assets are served from ``service/static/review/`` (no CDN: it works offline)
+and carry no data, so they need no token; the page sends the bearer token the reviewer types
+(kept in the tab's sessionStorage) with every ``/v1`` request, as any other client does.
+
+Plotting decodes the image a second time and runs in the detection pool's threads, after the
+detection itself was admitted by the pool; at most ``max_concurrency`` figures are drawn at
+once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import FileResponse, HTMLResponse, Response
+from pydantic import BaseModel, Field
+
+from service.deps import ServiceState, get_service, read_image, require_token
+from service.errors import ServiceError
+from service.schemas import ErrorBody
+
+__all__ = ["ReviewResult", "router"]
+
+STATIC_DIR = Path(__file__).resolve().parent.parent / "static" / "review"
+ASSETS = {"review.js": "text/javascript", "review.css": "text/css"}  # the only files served
+_PLOT_SLOTS_KEY = "review_plot_slots"
+
+router = APIRouter(tags=["review"])
+
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+_IMAGE_BODY = {"requestBody": {"required": True, "content": {
+    "multipart/form-data": {"schema": {"type": "object", "required": ["file"],
+                                       "properties": {"file": {"type": "string",
+                                                               "format": "binary"}}}},
+    "application/octet-stream": _BINARY, "image/jpeg": _BINARY, "image/png": _BINARY}}}
+_ERRORS = {s: {"model": ErrorBody} for s in (400, 401, 413, 415, 422, 503, 504)}
+
+
+class ReviewResult(BaseModel):
+    """What the reviewer's page shows for one image."""
+
+    status: str = Field(description="protected, clean or undetermined.")
+    title: str = Field(description="The verdict in words.")
+    reason: str = Field(description="Why, in words (the deciding stage's reason).")
+    verdict: dict[str, Any] = Field(description="Verdict.to_dict(), evidence included.")
+    figure_png_base64: str | None = Field(
+        default=None, description="The figure of what decided the verdict, PNG, base64.")
+    figure_error: str | None = None
+    request_id: str | None = None
+
+
+def _status(verdict) -> str:
+    return str(getattr(verdict, "status", None)
+               or ("protected" if verdict.protected else "clean"))
+
+
+def _reason(verdict) -> str:
+    ev = verdict.evidence or {}
+    return str(ev.get("reason") or getattr(verdict, "undetermined", None) or "no reason given")
+
+
+def _plot_slots(svc: ServiceState) -> asyncio.Semaphore:
+    slots = svc.extra.get(_PLOT_SLOTS_KEY)
+    if slots is None:
+        slots = svc.extra[_PLOT_SLOTS_KEY] = asyncio.Semaphore(svc.settings.max_concurrency)
+    return slots
+
+
+async def _figure(svc: ServiceState, data: bytes, verdict) -> bytes:
+    from lishield_guard.plot import verdict_png  # lazy: matplotlib only when a figure is asked
+
+    async with _plot_slots(svc):
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(svc.pool.executor, verdict_png, data, verdict,
+                                          svc.config)
+
+
+def _record(request: Request, verdict) -> None:
+    request.state.protected = verdict.protected
+    request.state.policy = verdict.policy
+
+
+@router.get("/review", response_class=HTMLResponse, include_in_schema=False)
+async def review_page() -> FileResponse:
+    """The reviewer's page: drop an image, see the verdict, its reason and its figure."""
+    return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+
+@router.get("/review/static/{name}", include_in_schema=False)
+async def review_asset(name: str) -> FileResponse:
+    """The page's script and style sheet (a fixed list; nothing else is served)."""
+    if name not in ASSETS:
+        raise ServiceError(404, "not_found", f"no asset {name!r}")
+    return FileResponse(STATIC_DIR / name, media_type=ASSETS[name])
+
+
+@router.post("/v1/review", response_model=ReviewResult, summary="Screen one image for a "
+             "reviewer: verdict, reason and figure", openapi_extra=_IMAGE_BODY,
+             responses=_ERRORS, dependencies=[Depends(require_token)])
+async def review(request: Request, svc: ServiceState = Depends(get_service)) -> ReviewResult:
+    """Screen one image (multipart field ``file`` or the raw body) and draw its figure.
+
+    A figure that cannot be drawn leaves ``figure_png_base64`` null and says why in
+    ``figure_error``; the verdict still stands.
+    """
+    from lishield_guard.plot import verdict_title
+
+    data = await read_image(request, svc.settings)
+    verdict = await svc.pool.detect(data)
+    _record(request, verdict)
+    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    figure, error = None, None
+    try:
+        figure = base64.b64encode(await _figure(svc, data, verdict)).decode("ascii")
+    except Exception as exc:  # noqa: BLE001 - the verdict is the answer; the figure is extra
+        error = f"{type(exc).__name__}: {exc}"
+    return ReviewResult(status=_status(verdict), title=verdict_title(verdict),
+                        reason=_reason(verdict), verdict=verdict.to_dict(explain=True),
+                        figure_png_base64=figure, figure_error=error,
+                        request_id=request.state.request_id)
+
+
+@router.post("/v1/screen/plot", response_class=Response, summary="Screen one image and return "
+             "the figure of what decided its verdict (PNG)", openapi_extra=_IMAGE_BODY,
+             responses={200: {"content": {"image/png": {}}}, **_ERRORS},
+             dependencies=[Depends(require_token)])
+async def screen_plot(request: Request, svc: ServiceState = Depends(get_service)) -> Response:
+    """The figure of ``lishield-guard detect --plot`` for an uploaded image, as PNG.
+
+    The verdict travels in headers: ``X-Lishield-Status`` (protected, clean or undetermined)
+    and ``X-Lishield-Policy`` (the matched policy, or empty).
+    """
+    data = await read_image(request, svc.settings)
+    verdict = await svc.pool.detect(data)
+    _record(request, verdict)
+    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    png = await _figure(svc, data, verdict)
+    return Response(png, media_type="image/png", headers={
+        "X-Lishield-Status": _status(verdict), "X-Lishield-Policy": verdict.policy or "",
+        "Cache-Control": "no-store"})

@@ -1,0 +1,142 @@
+"""The reviewer's page (/review), /v1/review and /v1/screen/plot; the page in a real browser.
+
+The browser test drives Debian's Chromium through Selenium (chromium + chromium-driver from
+apt, selenium from PyPI; `make test` installs them when run as root). It is skipped, with the
+reason, when any of them is missing. Set LISHIELD_SCREENSHOT_DIR to keep the screenshot of the
+page after an upload, and LISHIELD_REVIEW_IMAGE to upload another image than the demo's
+protected capture (docs/figures/review_page.png was made that way).
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from svc_helpers import live_server, make_settings
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+TOKEN = "review-test-token"
+
+
+@pytest.fixture(scope="module")
+def authed():
+    """A server that requires a bearer token."""
+    with live_server(make_settings(api_token=TOKEN)) as srv:
+        yield srv
+
+
+def test_page_and_assets_are_served_without_a_token(authed):
+    with authed.client() as c:
+        page = c.get("/review")
+        assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+        assert "/review/static/review.js" in page.text and "http" not in page.text.replace(
+            "http-equiv", "")  # no CDN, no absolute links: works offline
+        for name, kind in (("review.js", "javascript"), ("review.css", "css")):
+            r = c.get(f"/review/static/{name}")
+            assert r.status_code == 200 and kind in r.headers["content-type"]
+        assert c.get("/review/static/..%2Fapp.py").status_code == 404
+        assert c.get("/review/static/index.html").status_code == 404
+
+
+def test_review_and_plot_need_the_token(authed, demo_pair):
+    protected, _ = demo_pair
+    with authed.client() as c:
+        for route in ("/v1/review", "/v1/screen/plot"):
+            r = c.post(route, files={"file": ("p.jpg", protected.read_bytes(), "image/jpeg")})
+            assert r.status_code == 401 and r.json()["code"] == "unauthorized"
+
+
+def test_review_answers_verdict_reason_and_figure(authed, demo_pair):
+    protected, clean = demo_pair
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    with authed.client(headers=auth) as c:
+        r = c.post("/v1/review", files={"file": ("p.jpg", protected.read_bytes(), "image/jpeg")})
+        assert r.status_code == 200, r.text
+        d = r.json()
+        assert d["status"] in ("protected", "clean", "undetermined")
+        assert d["title"].startswith(d["status"].upper())
+        assert d["reason"] and d["verdict"]["evidence"]["reason"] == d["reason"]
+        screened = c.post("/v1/screen", files={"file": ("p.jpg", protected.read_bytes(),
+                                                        "image/jpeg")}).json()
+        assert screened["protected"] == (d["status"] == "protected") == d["verdict"]["protected"]
+        assert base64.b64decode(d["figure_png_base64"])[:8] == PNG_MAGIC
+        r = c.post("/v1/screen/plot", content=clean.read_bytes(),
+                   headers={"Content-Type": "image/jpeg"})
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        assert r.content[:8] == PNG_MAGIC and len(r.content) > 10_000
+        assert r.headers["x-lishield-status"] in ("clean", "protected", "undetermined")
+        bad = c.post("/v1/screen/plot", content=b"not an image",
+                     headers={"Content-Type": "image/jpeg"})
+        assert bad.status_code in (415, 422) and "code" in bad.json()
+
+
+def _browser() -> tuple[str, str]:
+    """Paths of a Chromium binary and its driver, or skip with the reason."""
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        pytest.skip("selenium is not installed (pip install -e '.[dev]')")
+    chromium = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser",
+                                                           "google-chrome")) if p), None)
+    driver = shutil.which("chromedriver")
+    if chromium is None or driver is None:
+        pytest.skip("no headless browser: Chromium and chromedriver are not installed "
+                    "(Debian: apt-get install chromium chromium-driver; `make test` does it "
+                    "when run as root)")
+    return chromium, driver
+
+
+def test_reviewer_page_in_a_headless_browser(authed, demo_pair, tmp_path):
+    chromium, driver_path = _browser()
+    from selenium import webdriver
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
+                "--window-size=1400,1500", "--no-proxy-server"):
+        opts.add_argument(arg)
+    try:
+        browser = webdriver.Chrome(service=Service(executable_path=driver_path), options=opts)
+    except WebDriverException as exc:
+        pytest.skip(f"Chromium would not start: {exc.msg}")
+    image = Path(os.environ.get("LISHIELD_REVIEW_IMAGE") or demo_pair[0]).resolve()
+    with authed.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
+        expected = c.post("/v1/review", content=image.read_bytes(),
+                          headers={"Content-Type": "application/octet-stream"}).json()
+    try:
+        browser.get(authed.url + "/review")
+        assert "lishield-guard" in browser.title
+        browser.find_element(By.ID, "token").send_keys(TOKEN)
+        file_input = browser.find_element(By.ID, "file")
+        browser.execute_script("arguments[0].style.display = 'block';", file_input)
+        file_input.send_keys(str(image))
+        WebDriverWait(browser, 120).until(
+            lambda b: b.execute_script("return document.body.dataset.state") in ("done",
+                                                                                 "error"))
+        error = browser.find_element(By.ID, "error")
+        assert not error.is_displayed(), error.text
+        title = browser.find_element(By.ID, "title")
+        assert title.text == expected["title"]
+        assert title.get_attribute("data-status") == expected["status"]
+        assert "Why:" in browser.find_element(By.ID, "reason").text
+        WebDriverWait(browser, 30).until(lambda b: b.execute_script(
+            "const i = document.getElementById('figure'); "
+            "return i.complete && i.naturalWidth > 0"))
+        width = browser.execute_script("return document.getElementById('figure').naturalWidth")
+        assert width >= 800
+        browser.execute_script("document.querySelector('#drop').scrollIntoView()")
+        shot = tmp_path / "review_page.png"
+        assert browser.save_screenshot(str(shot)) and shot.read_bytes()[:8] == PNG_MAGIC
+        keep = os.environ.get("LISHIELD_SCREENSHOT_DIR")
+        if keep:
+            Path(keep).mkdir(parents=True, exist_ok=True)
+            shutil.copy(shot, Path(keep) / "review_page.png")
+    finally:
+        browser.quit()
