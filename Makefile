@@ -1,31 +1,60 @@
 # lishield-guard: the two commands a fresh clone needs are `make run` and `make test`.
+#   make run  [PORT=8000] [HOST=127.0.0.1]   install what running needs, serve the demo
+#   make test                                install the dev tools too, run the test suite
 PY ?= python3
+PORT ?= 8000
+HOST ?= 127.0.0.1
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
+RUN_STAMP := $(VENV)/.installed-run
+DEV_STAMP := $(VENV)/.installed-dev
+IS_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo yes)
 
-.PHONY: run test lint bench clean venv
+.PHONY: run test lint bench clean venv tools
 
-$(STAMP): pyproject.toml
-	@command -v cc >/dev/null 2>&1 || { echo "installing a C compiler (firmware player tests)"; \
-	  apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null; }
-	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+
+# What running needs: the package and its runtime dependencies, nothing else.
+$(RUN_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+# Tests: the runtime plus the `dev` extra (pytest, hypothesis, httpx, selenium, ...).
+$(DEV_STAMP): pyproject.toml $(RUN_STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	touch $(STAMP)
+	touch $@
 
-venv: $(STAMP)
+venv: $(RUN_STAMP)
 
-run: $(STAMP)
-	$(BIN)/python scripts/demo.py
+run: $(RUN_STAMP)
+	$(BIN)/python scripts/demo.py --host $(HOST) --port $(PORT)
 
-test: $(STAMP)
+# System tools some tests use. Installed with apt-get only when really missing and when root;
+# otherwise say what is missing and let those tests skip with their reason.
+tools:
+	@if ! command -v cc >/dev/null 2>&1; then \
+	  if [ "$(IS_ROOT)" = yes ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing a C compiler (firmware player tests)"; \
+	    apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null; \
+	  else echo "note: no C compiler (cc); the firmware player tests will be skipped." \
+	    "Install gcc, or run make test as root on Debian/Ubuntu."; fi; fi
+	@if ! command -v chromedriver >/dev/null 2>&1 || \
+	    ! { command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; }; then \
+	  if [ "$(IS_ROOT)" = yes ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing chromium and chromium-driver (reviewer-page browser test)"; \
+	    apt-get update -qq && apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  else echo "note: no chromium/chromedriver; the reviewer-page browser test will be" \
+	    "skipped. Install them (Debian: apt-get install chromium chromium-driver)."; fi; fi
+
+test: $(DEV_STAMP) tools
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
-lint: $(STAMP)
+lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 
-bench: $(STAMP)
+bench: $(RUN_STAMP)
 	$(BIN)/lishield-guard bench --quick
 
 clean:
