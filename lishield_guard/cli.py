@@ -50,10 +50,16 @@ def _tidy_help() -> None:
         return
 
     def fix_linebreaks(paragraphs, markup_mode):
-        out = []
+        out: list[str] = []
         for para in paragraphs:
             lines = para.split("\n")
-            if any(ln[:1].isspace() for ln in lines[1:] if ln.strip()):
+            if lines and lines[0].strip() == "\b":  # click's "keep this block as written"
+                block = "\n".join(lines[1:])
+                if out and out[-1].rstrip().endswith(":") and "\n" not in out[-1]:
+                    out[-1] += "\n" + block  # "Examples:" then its block, no blank line
+                else:
+                    out.append(block)
+            elif any(ln[:1].isspace() for ln in lines[1:] if ln.strip()):
                 out.append(para)  # an indented block: keep it as written
             else:
                 out.append(" ".join(ln.strip() for ln in lines))
@@ -92,8 +98,9 @@ def _root(
     synthetic captures.
 
     Every command takes --config FILE.toml (default: the shipped calibrated config). Exit
-    status: 0 clean, 1 barcode found, 2 usage or input error. Documentation: README.md and
-    docs/ in the source tree.
+    status: 0 every image clean (or the command succeeded), 1 a barcode found, 2 usage error,
+    3 an input error or an image the detector could not look at (never "clean"), or the
+    command failed. Documentation: README.md and docs/ in the source tree.
 
     Examples:
       lishield-guard detect photo.jpg --plot verdict.png

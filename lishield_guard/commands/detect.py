@@ -123,7 +123,7 @@ def _exit_code(verdict) -> ExitCode:
     if status == "protected":
         return ExitCode.PROTECTED
     if status == "undetermined":  # fail closed: never "clean"
-        return getattr(ExitCode, "UNDETERMINED", ExitCode.ERROR)
+        return ExitCode.ERROR
     return ExitCode.CLEAN
 
 
@@ -155,8 +155,9 @@ def detect_command(
 ) -> None:
     """Decide whether images carry a policy barcode; print the verdict and its reason.
 
-    Exit status: 0 all clean, 1 at least one protected, 2 bad usage or an unreadable image,
-    3 undetermined or internal error. Folders and archives: `lishield-guard scan`.
+    Exit status: 0 every image clean; 1 at least one protected (wins over errors); 2 usage
+    error (bad arguments, config or path); 3 nothing protected but an unreadable or
+    undetermined image. Folders and archives: `lishield-guard scan`.
 
     Examples:
       lishield-guard detect photo.jpg
@@ -189,7 +190,7 @@ def detect_command(
             verdict = detect(source, cfg)
         except LishieldError as exc:
             typer.echo(f"error: {label}: {exc} [{exc.code}]", err=True)
-            codes.append(ExitCode.USAGE)
+            codes.append(ExitCode.ERROR)  # an input error: never clean
             continue
         except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
             typer.echo(f"error: {label}: internal error: {type(exc).__name__}: {exc}", err=True)
@@ -208,10 +209,9 @@ def detect_command(
                     from None
             typer.echo(f"plot written to {out}", err=True)
         codes.append(_exit_code(verdict))
-    # the most important outcome wins: protected, then bad input, then anything not clean
-    for code in (ExitCode.PROTECTED, ExitCode.USAGE):
-        if code in codes:
-            raise typer.Exit(int(code))
+    # protected wins over errors; an input error or an undetermined image is never clean
+    if ExitCode.PROTECTED in codes:
+        raise typer.Exit(int(ExitCode.PROTECTED))
     raise typer.Exit(max((int(c) for c in codes), default=int(ExitCode.CLEAN)))
 
 

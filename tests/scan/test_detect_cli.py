@@ -39,11 +39,11 @@ def test_protected_exits_1(tmp_path, run_cli, monkeypatch):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_bad_input_exits_2(tmp_path, run_cli):
+def test_bad_input_exits_2_or_3(tmp_path, run_cli):
     txt = tmp_path / "x.txt"
     txt.write_text("not an image")
-    res = run_cli("detect", txt)
-    assert res.exit_code == 2 and "unsupported_media_type" in res.output
+    res = run_cli("detect", txt)  # an unreadable image: an input error, never clean
+    assert res.exit_code == 3 and "unsupported_media_type" in res.output
     assert "Traceback" not in res.output
     assert run_cli("detect", tmp_path / "missing.jpg").exit_code == 2
     (img,) = write_images(tmp_path, ["a.jpg"])
