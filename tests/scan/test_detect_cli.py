@@ -104,3 +104,39 @@ def test_version_and_help_teach(run_cli):
         assert "Examples:" in out, cmd
     out = run_cli("detect", "--help").output
     assert "<default|paper>" in out and "production" in out
+
+
+def test_plot_reads_evidence_defensively(tmp_path):
+    """The figure draws from whatever evidence is there: extra keys (emitter variants, a
+    look-alike's parameters), missing keys, or an undetermined verdict."""
+    from lishield_guard.config import load_config
+    from lishield_guard.plot import verdict_png, verdict_title
+
+    (img,) = write_images(tmp_path, ["a.jpg"])
+    cfg = load_config(None)
+    fit = {"spec": "table1-seq1", "channel": "W", "rho": 0.95, "rho_lookalike": 0.5,
+           "gain": 8.8, "period_rows": 100.0, "cycles_per_slot_f1": 1.0, "phase_slots": 0.3,
+           "exposure_slots": 0.5, "coherence_t": 9.0, "n_periods": 2.4, "chroma_leak": None,
+           "domain": "linear", "phase_mode": "continuous", "slot_order": [2, 1, 0],
+           "switching": {"hz": 400.0, "band": "f_1"}, "emitter": "order 0-2-1, continuous",
+           "lookalike": {"freq_cpr": 0.02, "duty": 0.6, "phase_cycles": 0.1,
+                         "exposure_cycles": 0.2}}
+    evidences = [
+        {"reason": "fits", "axis": "rows", "best": {"spec": "table1-seq1", "sweep": {
+            "spec": "table1-seq1", "rho": 0.8, "period_rows": 100.0, "fit": fit}}},
+        {"reason": "folded", "axis": "columns", "best": {"spec": "table1-seq2", "fold": {
+            "spec": "table1-seq2", "rho": 0.93, "period_rows": 80.0,
+            "cycles_per_slot_f1": 1.1, "fold_snr": 40.0, "n_periods": 3.0}}},
+        {"reason": "nothing analysable"},
+        {},
+    ]
+    for i, ev in enumerate(evidences):
+        v = Verdict(i == 0, "no-distribution" if i == 0 else None, 0, 2, evidence=ev)
+        png = verdict_png(str(img), v, cfg)
+        assert png[:8] == b"\x89PNG\r\n\x1a\n", i
+    assert verdict_title(Verdict(True, "p", 0, 2, evidence=evidences[0])).startswith(
+        "PROTECTED")
+    und = Verdict(False, None, 0, 2, evidence={"reason": "too small"})
+    object.__setattr__(und, "undetermined", "too small")
+    if getattr(und, "status", None) == "undetermined":
+        assert verdict_title(und).startswith("UNDETERMINED")
