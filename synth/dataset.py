@@ -52,6 +52,7 @@ can be overridden with `Mix.with_overrides` (CLI ``--set key=value``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import json
 import math
@@ -470,8 +471,12 @@ def real_photo_scenes() -> tuple[str, ...]:
     from synth import scene
 
     lister = getattr(scene, "list_photo_scenes", None)
-    if lister is None:
-        return ()
+    return () if lister is None else _listed_photos(lister)
+
+
+@functools.lru_cache(maxsize=4)
+def _listed_photos(lister) -> tuple[str, ...]:
+    """The lister's photos, sorted; listed once per process (the corpus is read-only)."""
     try:
         return tuple(sorted(str(x) for x in lister()))
     except (OSError, LookupError):
