@@ -8,12 +8,14 @@ from contextlib import asynccontextmanager
 
 import numpy as np
 from fastapi import FastAPI
+from fastapi.openapi.utils import get_openapi
+from fastapi_offline import FastAPIOffline
 
 import lishield_guard
 from lishield_guard import AppConfig, Limits, load_config
 from lishield_guard.threads import one_thread_per_worker
 from service.access_log import RequestContextMiddleware, configure_logging
-from service.deps import DetectFn, DetectPool, ServiceState
+from service.deps import BodyBudget, DetectFn, DetectPool, ServiceState
 from service.errors import install_error_handlers
 from service.metrics import Metrics
 from service.routes import ops, policies, screen
@@ -34,8 +36,26 @@ def effective_config(settings: ServiceSettings) -> AppConfig:
     """
     cfg = load_config(settings.config_path)
     limits = Limits(max_pixels=settings.max_pixels or cfg.limits.max_pixels,
-                    max_bytes=min(cfg.limits.max_bytes, settings.max_upload_bytes))
+                    max_bytes=min(cfg.limits.max_bytes, settings.max_upload_bytes),
+                    max_decode_bytes=settings.max_decode_bytes or cfg.limits.max_decode_bytes)
     return dataclasses.replace(cfg, limits=limits)
+
+
+def _tighten_openapi(app: FastAPI, settings: ServiceSettings) -> None:
+    """Make the OpenAPI schema as strict as the running server: the batch's file count."""
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, summary=app.summary,
+                                 routes=app.routes)
+            body = (schema.get("paths", {}).get("/v1/screen/batch", {}).get("post", {})
+                    .get("requestBody", {}).get("content", {}).get("multipart/form-data"))
+            if body:
+                body["schema"]["properties"]["files"]["maxItems"] = settings.max_batch_files
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _warmup_image() -> np.ndarray:
@@ -69,7 +89,9 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
     config = effective_config(settings)
     metrics = Metrics()
     pool = DetectPool(detect_fn or lishield_guard.detect, config, settings, metrics)
-    state = ServiceState(settings=settings, config=config, metrics=metrics, pool=pool)
+    bodies = BodyBudget(settings.max_receiving_bytes, settings.retry_after_s)
+    state = ServiceState(settings=settings, config=config, metrics=metrics, pool=pool,
+                         bodies=bodies)
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):
@@ -85,13 +107,19 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
             state.ready = False
             pool.shutdown()
 
-    app = FastAPI(title="lishield-guard upload screening",
-                  version=lishield_guard.__version__,
-                  summary="Does an uploaded photo carry a LiShield privacy barcode?",
-                  lifespan=lifespan)
+    # /docs and /redoc with Swagger UI and ReDoc served from the package (fastapi-offline):
+    # no CDN, so the docs work on an air-gapped host.
+    app = FastAPIOffline(title="lishield-guard upload screening",
+                         version=lishield_guard.__version__,
+                         summary="Does an uploaded photo carry a LiShield privacy barcode?",
+                         lifespan=lifespan)
     app.state.service = state
     install_error_handlers(app)
     for module in (screen, policies, ops):
         app.include_router(module.router)
+    app.include_router(__import__("service.routes.review", fromlist=["router"]).router)  # #23
+    app.include_router(ops.metrics_router(
+        protected=settings.protect_metrics and settings.api_token is not None))
+    _tighten_openapi(app, settings)
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
     return app

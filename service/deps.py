@@ -19,8 +19,8 @@ from service.errors import ServiceError
 from service.metrics import Metrics
 from service.settings import ServiceSettings
 
-__all__ = ["DetectFn", "DetectPool", "ServiceState", "get_service", "read_body", "read_form",
-           "read_image", "require_metrics_token", "require_token"]
+__all__ = ["BodyBudget", "DetectFn", "DetectPool", "ServiceState", "get_service", "read_body",
+           "read_form", "read_image", "release_body", "require_metrics_token", "require_token"]
 
 DetectFn = Callable[[bytes, AppConfig], Verdict]
 MULTIPART = "multipart/form-data"
@@ -61,6 +61,18 @@ class DetectPool:
         self._admitted = 0
         self._lock = threading.Lock()
 
+    def full(self) -> bool:
+        """True when a new detection would be refused (checked before reading a body)."""
+        with self._lock:
+            return self._admitted >= self._capacity
+
+    def overloaded(self) -> ServiceError:
+        """503 ``overloaded`` with ``Retry-After``."""
+        self._metrics.rejected_overload.inc()
+        return ServiceError(503, "overloaded", f"{self._admitted} detections in flight or "
+                            f"queued (max_concurrency + max_queue = {self._capacity}); "
+                            "retry later", headers={"Retry-After": str(self._retry_after_s)})
+
     def _release(self, _fut: Future | None = None) -> None:
         with self._lock:
             self._admitted -= 1
@@ -70,10 +82,7 @@ class DetectPool:
         """Detect in a worker thread; 503 ``overloaded`` when full, 504 ``timeout`` when slow."""
         with self._lock:
             if self._admitted >= self._capacity:
-                self._metrics.rejected_overload.inc()
-                raise ServiceError(503, "overloaded", f"{self._admitted} detections in flight or "
-                                   f"queued (max_concurrency + max_queue = {self._capacity}); "
-                                   "retry later", headers={"Retry-After": str(self._retry_after_s)})
+                raise self.overloaded()
             self._admitted += 1
         self._metrics.detections_in_flight.inc()
         try:
@@ -95,6 +104,43 @@ class DetectPool:
         self.executor.shutdown(wait=False, cancel_futures=True)
 
 
+class BodyBudget:
+    """Bytes of request bodies held (being received or screened) across all requests.
+
+    Parameters
+    ----------
+    capacity_bytes : int
+        Budget in bytes (``max_receiving_bytes``).
+    retry_after_s : int
+        ``Retry-After`` of the 503 sent when a body would not fit.
+    """
+
+    def __init__(self, capacity_bytes: int, retry_after_s: int) -> None:
+        self.capacity_bytes = capacity_bytes
+        self.retry_after_s = retry_after_s
+        self.held_bytes = 0
+        self._lock = threading.Lock()
+
+    def take(self, request: Request, n_bytes: int) -> None:
+        """Hold ``n_bytes`` more for ``request`` or raise 503 ``overloaded``."""
+        with self._lock:
+            if self.held_bytes + n_bytes > self.capacity_bytes:
+                raise ServiceError(503, "overloaded", f"request bodies being received hold "
+                                   f"{self.held_bytes} bytes; {n_bytes} more would pass "
+                                   f"max_receiving_bytes={self.capacity_bytes}; retry later",
+                                   headers={"Retry-After": str(self.retry_after_s)})
+            self.held_bytes += n_bytes
+        request.state.body_held_bytes = getattr(request.state, "body_held_bytes", 0) + n_bytes
+
+    def give_back(self, request: Request) -> None:
+        """Return everything ``request`` holds (idempotent)."""
+        n = getattr(request.state, "body_held_bytes", 0)
+        if n:
+            request.state.body_held_bytes = 0
+            with self._lock:
+                self.held_bytes -= n
+
+
 @dataclass
 class ServiceState:
     """Everything routes need, built once by `service.app.create_app`."""
@@ -103,6 +149,7 @@ class ServiceState:
     config: AppConfig
     metrics: Metrics
     pool: DetectPool
+    bodies: BodyBudget | None = None
     ready: bool = False
     extra: dict = field(default_factory=dict)
 
@@ -147,6 +194,9 @@ def _too_large(n_bytes: int | str, cap_bytes: int) -> ServiceError:
 async def read_body(request: Request, cap_bytes: int) -> bytes:
     """Read the request body, refusing it as soon as it exceeds ``cap_bytes``.
 
+    The bytes held count against the service's `BodyBudget` until `release_body`, and the
+    whole body must arrive within ``body_timeout_s``.
+
     Parameters
     ----------
     request : Request
@@ -162,21 +212,48 @@ async def read_body(request: Request, cap_bytes: int) -> bytes:
     ------
     ServiceError
         413 ``payload_too_large`` past the cap, 400 ``invalid_request`` for a bad
-        ``Content-Length``.
+        ``Content-Length``, 408 ``body_timeout`` for a body slower than ``body_timeout_s``,
+        503 ``overloaded`` when the body would not fit the receiving budget.
+    starlette.requests.ClientDisconnect
+        When the client goes away mid-body (answered as 499 ``client_disconnected``).
     """
+    svc: ServiceState = request.app.state.service
+    budget = svc.bodies
     declared = request.headers.get("content-length")
     if declared is not None:
         if not declared.isdigit():
             raise ServiceError(400, "invalid_request", f"bad Content-Length {declared!r}")
         if int(declared) > cap_bytes:
             raise _too_large(declared, cap_bytes)
-    buf = bytearray()
-    async for chunk in request.stream():
-        buf += chunk
-        request.state.bytes_received = len(buf)
-        if len(buf) > cap_bytes:
-            raise _too_large(f"more than {cap_bytes}", cap_bytes)
-    return bytes(buf)
+        if budget is not None:
+            budget.take(request, int(declared))
+    timeout_s = svc.settings.body_timeout_s
+    chunks: list[bytes] = []
+    n = 0
+    try:
+        async with asyncio.timeout(timeout_s):
+            async for chunk in request.stream():
+                if not chunk:
+                    continue
+                n += len(chunk)
+                request.state.bytes_received = n
+                if n > cap_bytes:
+                    raise _too_large(f"more than {cap_bytes}", cap_bytes)
+                if budget is not None and declared is None:
+                    budget.take(request, len(chunk))
+                chunks.append(chunk)
+    except TimeoutError:
+        raise ServiceError(408, "body_timeout", f"request body not received within "
+                           f"body_timeout_s={timeout_s} ({n} bytes arrived)",
+                           headers={"Connection": "close"}) from None
+    return b"".join(chunks)
+
+
+def release_body(request: Request) -> None:
+    """Give the bytes a request's body held back to the receiving budget."""
+    budget = request.app.state.service.bodies
+    if budget is not None:
+        budget.give_back(request)
 
 
 async def read_form(request: Request, cap_bytes: int, *, max_files: int) -> FormData:
@@ -227,6 +304,9 @@ async def upload_bytes(upload: UploadFile, cap_bytes: int) -> bytes:
 
 async def read_image(request: Request, settings: ServiceSettings) -> bytes:
     """Image bytes of ``/v1/screen``: multipart field ``file``, or else the raw body."""
+    svc: ServiceState = request.app.state.service
+    if svc.pool.full():  # refuse before receiving megabytes that could not be screened
+        raise svc.pool.overloaded()
     cap = settings.max_upload_bytes
     if request.headers.get("content-type", "").lower().startswith(MULTIPART):
         form = await read_form(request, cap + settings.multipart_overhead_bytes, max_files=1)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import logging
+from enum import StrEnum
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from lishield_guard.errors import (
     ConfigError,
@@ -19,7 +21,8 @@ from lishield_guard.errors import (
     UnsupportedImageError,
 )
 
-__all__ = ["STATUS_BY_ERROR", "ServiceError", "describe", "install_error_handlers"]
+__all__ = ["CLIENT_CLOSED_REQUEST", "STATUS_BY_ERROR", "ErrorCode", "ServiceError", "describe",
+           "install_error_handlers"]
 
 log = logging.getLogger("lishield_guard.service")
 
@@ -38,6 +41,39 @@ _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "
                405: "method_not_allowed", 406: "not_acceptable", 413: "payload_too_large",
                415: "unsupported_media_type", 422: "invalid_request", 429: "too_many_requests",
                503: "unavailable"}
+CLIENT_CLOSED_REQUEST = 499  # nginx's status for a client that went away: never sent, logged
+
+
+class ErrorCode(StrEnum):
+    """Every ``code`` an error answer can carry (the OpenAPI schema lists them as an enum)."""
+
+    # the core's typed errors (LishieldError.code)
+    unsupported_media_type = "unsupported_media_type"
+    undecodable_image = "undecodable_image"
+    invalid_image = "invalid_image"
+    image_too_large = "image_too_large"
+    payload_too_large = "payload_too_large"
+    # the service's own
+    invalid_request = "invalid_request"
+    invalid_multipart = "invalid_multipart"
+    empty_body = "empty_body"
+    too_many_files = "too_many_files"
+    unauthorized = "unauthorized"
+    overloaded = "overloaded"
+    timeout = "timeout"
+    body_timeout = "body_timeout"
+    client_disconnected = "client_disconnected"
+    not_ready = "not_ready"
+    internal_error = "internal_error"
+    # plain HTTP errors raised by the framework
+    bad_request = "bad_request"
+    forbidden = "forbidden"
+    not_found = "not_found"
+    method_not_allowed = "method_not_allowed"
+    not_acceptable = "not_acceptable"
+    too_many_requests = "too_many_requests"
+    unavailable = "unavailable"
+    http_error = "http_error"
 
 
 class ServiceError(Exception):
@@ -83,6 +119,9 @@ def describe(exc: BaseException) -> tuple[int, str, str, dict[str, str]]:
     """
     if isinstance(exc, ServiceError):
         return exc.status, exc.code, exc.message, exc.headers
+    if isinstance(exc, ClientDisconnect):  # a client event, not a bug: no 500, no traceback
+        return (CLIENT_CLOSED_REQUEST, ErrorCode.client_disconnected.value,
+                "the client closed the connection before its request was read", {})
     if isinstance(exc, LishieldError) and not isinstance(exc, ConfigError):
         for cls in type(exc).__mro__:
             if cls in STATUS_BY_ERROR:
@@ -92,7 +131,7 @@ def describe(exc: BaseException) -> tuple[int, str, str, dict[str, str]]:
                            for e in exc.errors())
         return 422, "invalid_request", f"invalid request: {fields}", {}
     if isinstance(exc, StarletteHTTPException):
-        code = _HTTP_CODES.get(exc.status_code, f"http_{exc.status_code}")
+        code = _HTTP_CODES.get(exc.status_code, ErrorCode.http_error.value)
         return exc.status_code, code, str(exc.detail), dict(exc.headers or {})
     return 500, "internal_error", "internal error; the request id is in the X-Request-ID header", {}
 
@@ -101,7 +140,10 @@ def error_response(request: Request, exc: BaseException) -> JSONResponse:
     """JSON error response for ``exc``; records the code for the access log and metrics."""
     status, code, message, headers = describe(exc)
     request.state.error_code = code
-    if status >= 500 and code == "internal_error":
+    if code == ErrorCode.client_disconnected.value:
+        log.info("client disconnected during %s %s (request_id=%s)", request.method,
+                 request.url.path, getattr(request.state, "request_id", None))
+    elif status >= 500 and code == "internal_error":
         log.error("unhandled error on %s %s (request_id=%s)", request.method, request.url.path,
                   getattr(request.state, "request_id", None), exc_info=exc)
     return JSONResponse({"code": code, "message": message}, status_code=status, headers=headers)
@@ -114,5 +156,5 @@ async def _handle(request: Request, exc: Exception) -> JSONResponse:
 def install_error_handlers(app: FastAPI) -> None:
     """Register the handlers that turn every error into ``{"code", "message"}`` JSON."""
     for cls in (ServiceError, LishieldError, RequestValidationError, StarletteHTTPException,
-                Exception):
+                ClientDisconnect, Exception):
         app.add_exception_handler(cls, _handle)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from service.errors import ErrorCode
 
 __all__ = ["BatchEntry", "BatchResult", "ErrorBody", "Health", "PoliciesInfo", "PolicyInfo",
            "ScreenResult"]
@@ -13,7 +15,7 @@ __all__ = ["BatchEntry", "BatchResult", "ErrorBody", "Health", "PoliciesInfo", "
 class ErrorBody(BaseModel):
     """Every error answer: a stable machine-readable code and a human-readable message."""
 
-    code: str = Field(examples=["unsupported_media_type"])
+    code: ErrorCode = Field(examples=["unsupported_media_type"])
     message: str
 
 
@@ -21,12 +23,17 @@ class ScreenResult(BaseModel):
     """One verdict: the fields of ``Verdict.to_dict()`` plus the request id."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [{
-        "protected": True, "policy": "no-distribution", "matches": 3, "required": 2,
+        "status": "protected", "protected": True, "policy": "no-distribution", "matches": 3,
+        "required": 2,
         "score": 0.93, "profile": "default", "skipped": ["columns: verdict certain from rows"],
         "timings_ms": {"decode": 9.1, "profile_luma": 4.2, "match": 0.8},
+        "undetermined_reason": None,
         "request_id": "7d1c0e5e9a8b4f0c9a3f2f1f0e6d5c4b"}]})
 
-    protected: bool
+    status: Literal["protected", "clean", "undetermined"] = Field(
+        description="undetermined: the detector could not look at this image (too small on "
+        "every axis, or nothing analysable); never read it as clean.")
+    protected: bool = Field(description="True only for status protected.")
     policy: str | None = Field(description="Matched policy id; null when not protected.")
     matches: int = Field(ge=0)
     required: int = Field(ge=0)
@@ -36,6 +43,8 @@ class ScreenResult(BaseModel):
     timings_ms: dict[str, float] = Field(description="Wall time per stage, milliseconds.")
     evidence: dict[str, Any] | None = Field(default=None,
                                             description="Only with ?explain=true.")
+    undetermined_reason: str | None = Field(
+        default=None, description="Why the detector could not look (status undetermined).")
     request_id: str | None = None
 
 

@@ -25,7 +25,9 @@ class ServiceSettings(BaseSettings):
     api_token : SecretStr or None
         Bearer token required on every ``/v1`` route (``LISHIELD_API_TOKEN``); None disables auth.
     protect_metrics : bool
-        Also require the token on ``/metrics``.
+        Also require the token on ``/metrics`` (default True: metrics tell traffic and
+        verdict counts; ``LISHIELD_PROTECT_METRICS=false`` opens them). Without
+        ``api_token`` nothing is protected; the OpenAPI schema declares what is enforced.
     max_upload_bytes : int
         Largest image accepted, in bytes; the request body of ``/v1/screen`` may exceed it by
         ``multipart_overhead_bytes`` (form boundaries and headers).
@@ -37,6 +39,15 @@ class ServiceSettings(BaseSettings):
         Largest request body of ``/v1/screen/batch``, in bytes.
     max_pixels : int or None
         Pixel cap overriding the config file's ``limits.max_pixels``.
+    max_decode_bytes : int or None
+        Memory budget of one detection, in bytes, overriding the config file's
+        ``limits.max_decode_bytes`` (checked from the header before decoding).
+    body_timeout_s : float
+        Longest time a client may take to send a request body, in seconds; beyond, 408
+        ``body_timeout`` (a slow client cannot hold a connection and its buffer forever).
+    max_receiving_bytes : int
+        Memory budget of request bodies being received or screened across all requests, in
+        bytes; a request that would exceed it gets 503 ``overloaded`` with ``Retry-After``.
     max_concurrency : int
         Detections running at once (threads of the detection pool).
     max_queue : int
@@ -55,12 +66,15 @@ class ServiceSettings(BaseSettings):
 
     config_path: Path | None = None
     api_token: SecretStr | None = None
-    protect_metrics: bool = False
+    protect_metrics: bool = True
     max_upload_bytes: int = Field(default=32 * 1024 * 1024, ge=1)
     multipart_overhead_bytes: int = Field(default=64 * 1024, ge=0)
     max_batch_files: int = Field(default=16, ge=1)
     max_batch_bytes: int = Field(default=128 * 1024 * 1024, ge=1)
     max_pixels: int | None = Field(default=None, ge=1)
+    max_decode_bytes: int | None = Field(default=None, ge=1)
+    body_timeout_s: float = Field(default=60.0, gt=0)
+    max_receiving_bytes: int = Field(default=256 * 1024 * 1024, ge=1)
     max_concurrency: int = Field(default_factory=_default_concurrency, ge=1)
     max_queue: int = Field(default=16, ge=0)
     detect_timeout_s: float = Field(default=10.0, gt=0)

@@ -9,7 +9,7 @@ from service.errors import ServiceError
 from service.metrics import CONTENT_TYPE_LATEST
 from service.schemas import ErrorBody, Health
 
-__all__ = ["router"]
+__all__ = ["metrics_router", "router"]
 
 router = APIRouter(tags=["operations"])
 
@@ -28,8 +28,26 @@ async def readyz(svc: ServiceState = Depends(get_service)) -> Health:
     return Health(status="ok")
 
 
-@router.get("/metrics", response_class=Response, dependencies=[Depends(require_metrics_token)],
-            responses={200: {"content": {"text/plain": {}}}, 401: {"model": ErrorBody}})
 async def metrics(svc: ServiceState = Depends(get_service)) -> Response:
     """Prometheus text exposition."""
     return Response(svc.metrics.render(), media_type=CONTENT_TYPE_LATEST)
+
+
+def metrics_router(*, protected: bool) -> APIRouter:
+    """The ``/metrics`` route, declared (in OpenAPI) exactly as it is enforced.
+
+    Parameters
+    ----------
+    protected : bool
+        Require the bearer token (``protect_metrics`` with an ``api_token`` set).
+    """
+    r = APIRouter(tags=["operations"])
+    if protected:
+        r.get("/metrics", response_class=Response,
+              dependencies=[Depends(require_metrics_token)],
+              responses={200: {"content": {"text/plain": {}}}, 401: {"model": ErrorBody}})(
+            metrics)
+    else:
+        r.get("/metrics", response_class=Response,
+              responses={200: {"content": {"text/plain": {}}}})(metrics)
+    return r

@@ -12,6 +12,7 @@ from service.deps import (
     get_service,
     read_form,
     read_image,
+    release_body,
     require_token,
     upload_bytes,
 )
@@ -22,14 +23,24 @@ __all__ = ["router"]
 
 router = APIRouter(prefix="/v1", tags=["screening"], dependencies=[Depends(require_token)])
 
-_BINARY = {"schema": {"type": "string", "format": "binary"}}
+#: Image types the decoder reads; the bytes decide, whatever the declared type says.
+IMAGE_MEDIA_TYPES = ("image/jpeg", "image/png", "image/tiff", "image/webp", "image/bmp",
+                     "image/gif", "image/heic", "image/heif")
+_IMAGE = {"type": "string", "format": "binary", "contentMediaType": "image/*", "minLength": 1,
+          "description": "Image bytes: " + ", ".join(IMAGE_MEDIA_TYPES) + " (judged by the "
+          "bytes; anything else is answered 415 or 422)."}
+_BINARY = {"schema": _IMAGE}
+_IMAGE_PART = {"contentType": ", ".join(IMAGE_MEDIA_TYPES)}
 _SCREEN_BODY = {"requestBody": {"required": True, "content": {
     MULTIPART: {"schema": {"type": "object", "required": ["file"],
-                           "properties": {"file": {"type": "string", "format": "binary"}}}},
-    "application/octet-stream": _BINARY, "image/jpeg": _BINARY, "image/png": _BINARY}}}
+                           "properties": {"file": _IMAGE}},
+                "encoding": {"file": _IMAGE_PART}},
+    "application/octet-stream": _BINARY, **{t: _BINARY for t in IMAGE_MEDIA_TYPES}}}}
+# maxItems is set from the running settings by service.app (max_batch_files)
 _BATCH_BODY = {"requestBody": {"required": True, "content": {
     MULTIPART: {"schema": {"type": "object", "required": ["files"], "properties": {
-        "files": {"type": "array", "items": {"type": "string", "format": "binary"}}}}}}}}
+        "files": {"type": "array", "minItems": 1, "items": _IMAGE}}},
+        "encoding": {"files": _IMAGE_PART}}}}}
 
 
 def _errors(*statuses: int) -> dict:
@@ -41,28 +52,38 @@ _EXPLAIN = Query(False, description="Include the detector's evidence (tones, rat
 
 def _result(request: Request, svc: ServiceState, verdict: Verdict, explain: bool,
             *, record: bool = True) -> ScreenResult:
-    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    status = verdict.status
+    label = "undetermined" if status == "undetermined" else (verdict.policy or "none")
+    svc.metrics.verdicts.labels(label).inc()
     if record:
         request.state.protected = verdict.protected
         request.state.policy = verdict.policy
+        request.state.verdict_status = status
     return ScreenResult(**verdict.to_dict(explain=explain),
                         request_id=request.state.request_id)
 
 
 @router.post("/screen", response_model=ScreenResult, response_model_exclude_unset=True,
              summary="Screen one image", openapi_extra=_SCREEN_BODY,
-             responses=_errors(400, 401, 413, 415, 422, 503, 504))
+             responses=_errors(400, 401, 408, 413, 415, 422, 503, 504))
 async def screen(request: Request, explain: bool = _EXPLAIN,
                  svc: ServiceState = Depends(get_service)) -> ScreenResult:
-    """Screen one image sent as multipart field ``file`` or as the raw body (any type)."""
-    data = await read_image(request, svc.settings)
-    verdict = await svc.pool.detect(data)
+    """Screen one image sent as multipart field ``file`` or as the raw body (any type).
+
+    ``status`` is protected, clean or undetermined (the detector could not look at the
+    image, e.g. under 64 lines on every axis; ``undetermined_reason`` says why).
+    """
+    try:
+        data = await read_image(request, svc.settings)
+        verdict = await svc.pool.detect(data)
+    finally:
+        release_body(request)
     return _result(request, svc, verdict, explain)
 
 
 @router.post("/screen/batch", response_model=BatchResult, response_model_exclude_unset=True,
              summary="Screen several images", openapi_extra=_BATCH_BODY,
-             responses=_errors(400, 401, 413, 415, 422))
+             responses=_errors(400, 401, 408, 413, 415, 422, 503))
 async def screen_batch(request: Request, explain: bool = _EXPLAIN,
                        svc: ServiceState = Depends(get_service)) -> BatchResult:
     """Screen multipart files ``files`` (or ``file``); a bad file gets its own error entry."""
@@ -70,7 +91,13 @@ async def screen_batch(request: Request, explain: bool = _EXPLAIN,
     if not request.headers.get("content-type", "").lower().startswith(MULTIPART):
         raise ServiceError(415, "unsupported_media_type", "batch needs multipart/form-data "
                            "with one or more file fields named 'files'")
-    form = await read_form(request, s.max_batch_bytes, max_files=s.max_batch_files + 1)
+    if svc.pool.full():
+        raise svc.pool.overloaded()
+    try:
+        form = await read_form(request, s.max_batch_bytes, max_files=s.max_batch_files + 1)
+    except BaseException:
+        release_body(request)
+        raise
     try:
         parts = [p for p in form.getlist("files") + form.getlist("file")
                  if isinstance(p, UploadFile)]
@@ -93,4 +120,5 @@ async def screen_batch(request: Request, explain: bool = _EXPLAIN,
             entries.append(entry)
     finally:
         await form.close()
+        release_body(request)
     return BatchResult(request_id=request.state.request_id, results=entries)
