@@ -15,15 +15,31 @@ Flow
 3. `summarise` turns per-image verdicts into rates: image-level false-alarm rate on the clean set
    with its exact one-sided Clopper-Pearson 95 % upper bound, false candidate matches (paper
    Fig. 21 analogue), detection overall and per group of positives.
-4. `select_setting`: highest detection among settings whose FAR upper bound <= target.
+4. `select_setting`: highest detection among settings whose FAR upper bound <= target, on the
+   *tuning* part only.
+5. Certification: the chosen setting alone is scored once on the held-out *certification*
+   part, and `claim` calls the target met only when that part's bound reaches it.
+
+Tuning and certification
+------------------------
+The bound of the setting picked as the most sensitive one whose bound meets the target, computed
+on the images it was picked on, is optimistic: among ~10^5 settings the winner sits just above
+the highest clean score by construction. So the clean images (and the positives) are split
+(`split_parts`): seeded, stratified by `stratum_key` (input folder, kind, preset), and whole
+source photos at a time (`source_keys`, `source_groups`: every variant of one photo, and every
+synthetic capture of it, on the same side). Selection sees the tuning part; the certified FAR
+bound and detection rate come from the certification part, for one setting, so they are
+ordinary binomial estimates. An independent clean folder may replace the clean split.
 
 Bounds
 ------
 ``far_upper`` is the exact *one-sided* 95 % upper bound: the p with P(Bin(n, p) <= k) = 0.05,
 i.e. ``beta.ppf(0.95, k + 1, n - k)`` (= the upper end of a two-sided 90 % Clopper-Pearson
-interval). With k = 0 it is 1 - 0.05^(1/n), so showing FAR <= t needs
-n >= ln(0.05) / ln(1 - t) clean images with no false alarm: 2995 for t = 1e-3 (n = 2994 gives
-1.0003e-3). The two-sided 95 % interval (``level=0.95`` in `lishield_guard.stats`) is also
+interval), computed by scipy's ``binomtest(k, n, alternative="less").proportion_ci(
+method="exact")`` (`lishield_guard.stats.upper_bound`). With k = 0 it is 1 - 0.05^(1/n), so
+showing FAR <= t needs n >= ln(0.05) / ln(1 - t) clean images with no false alarm: 2995 for
+t = 1e-3 (n = 2994 gives 1.0003e-3); `images_needed` also answers for k > 0 (4742 with one
+false alarm). The two-sided 95 % interval (``level=0.95`` in `lishield_guard.stats`) is also
 reported; its upper end needs n >= ln(0.025) / ln(1 - t) = 3688 for t = 1e-3.
 
 Null model (default profile)
@@ -55,6 +71,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
+import re
 import time
 from dataclasses import dataclass, field, fields
 
@@ -77,10 +95,12 @@ from lishield_guard.detect import (
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
 
 __all__ = [
+    "Claim",
     "DefaultGrid",
     "PaperGrid",
     "Setting",
     "candidate_table",
+    "claim",
     "default_scores",
     "fold_protected",
     "sweep_protected",
@@ -91,6 +111,10 @@ __all__ = [
     "null_model_far",
     "paper_scores",
     "select_setting",
+    "source_groups",
+    "source_keys",
+    "split_parts",
+    "stratum_key",
     "summarise",
 ]
 
@@ -116,23 +140,23 @@ def far_upper_bound(k: int, n: int, confidence: float = CONFIDENCE) -> float:
     Returns
     -------
     float
-        p_hi with P(Bin(n, p_hi) <= k) = 1 - confidence; 1 when n = 0 or k = n.
+        p_hi with P(Bin(n, p_hi) <= k) = 1 - confidence (scipy's
+        ``binomtest(k, n, alternative="less").proportion_ci(method="exact")``, through
+        `lishield_guard.stats.upper_bound`); 1 when n = 0 or k = n.
+
+    Raises
+    ------
+    ValueError
+        If not 0 <= k <= n.
 
     Examples
     --------
     >>> round(far_upper_bound(0, 10), 4)
     0.2589
     """
-    from scipy.stats import beta
+    from lishield_guard.stats import upper_bound
 
-    k, n = int(k), int(n)
-    if not 0 <= k <= n:
-        if n == 0 and k == 0:
-            return 1.0
-        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
-    if n == 0 or k == n:
-        return 1.0
-    return float(beta.ppf(confidence, k + 1, n - k))
+    return upper_bound(k, n, confidence)
 
 
 def two_sided_upper(k: int, n: int, level: float = CONFIDENCE) -> float:
@@ -142,20 +166,58 @@ def two_sided_upper(k: int, n: int, level: float = CONFIDENCE) -> float:
     return clopper_pearson(k, n, level)[1]
 
 
-def images_needed(target_far: float, confidence: float = CONFIDENCE) -> int:
-    """Clean images with zero false alarms needed for a one-sided bound <= target_far.
+def images_needed(target_far: float, confidence: float = CONFIDENCE, *,
+                  false_alarms: int = 0) -> int:
+    """Clean images needed for a one-sided bound <= target_far with a given false-alarm count.
+
+    Parameters
+    ----------
+    target_far : float
+        Target image false-alarm rate in (0, 1), unitless.
+    confidence : float, optional
+        One-sided confidence, unitless. Default 0.95.
+    false_alarms : int, optional
+        False alarms k >= 0 among them. Default 0.
+
+    Returns
+    -------
+    int
+        The smallest n with ``far_upper_bound(k, n) <= target_far``.
+
+    Raises
+    ------
+    ValueError
+        If target_far is outside (0, 1) or false_alarms < 0.
+
+    Notes
+    -----
+    With k = 0 the bound is 1 - (1 - confidence)^(1/n), so n = ceil(ln(1 - confidence) /
+    ln(1 - target_far)); for k > 0 the bound falls monotonically in n, and the smallest n is
+    found by doubling, then bisection.
 
     Examples
     --------
     >>> images_needed(1e-3)
     2995
+    >>> images_needed(1e-3, false_alarms=1)
+    4742
     """
     if not 0 < target_far < 1:
-        raise ValueError(f"need 0 < target_far < 1, got {target_far!r}")
-    n = math.ceil(math.log(1 - confidence) / math.log1p(-target_far))
-    while far_upper_bound(0, n, confidence) > target_far:  # guard against round-off
-        n += 1
-    return n
+        raise ValueError(f"need 0 < target_far < 1, got target_far={target_far!r}")
+    k = int(false_alarms)
+    if k < 0:
+        raise ValueError(f"need false_alarms >= 0, got false_alarms={k}")
+    lo = max(k + 1, math.ceil(math.log(1 - confidence) / math.log1p(-target_far)))
+    hi = lo
+    while far_upper_bound(k, hi, confidence) > target_far:
+        lo, hi = hi, 2 * hi
+    while lo < hi:  # smallest n in [lo, hi] meeting the target
+        mid = (lo + hi) // 2
+        if far_upper_bound(k, mid, confidence) <= target_far:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi
 
 
 # ----------------------------------------------------------------------------- grids
@@ -464,13 +526,12 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
     -------
     settings : list of Setting
     protected : ndarray of bool, shape (n_settings, n_images)
-    cand_hits : ndarray of shape (n_settings, n_images)
+    cand_hits : ndarray of int32, shape (n_settings, n_images)
         Candidates with >= the required tones (any purity), per image.
     cand_total : ndarray of shape (n_images,)
         Candidates analysed per image.
     """
     n_img = tables.shape[0]
-    settings, prot, hits = [], [], []
     valid = tables[..., VALID] > 0
     cand_total = valid[:, 0, :].sum(axis=1)
     fold_variants: list[tuple[tuple, np.ndarray | bool]] = [((), False)]
@@ -487,6 +548,11 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
                          for sp, so in sweep_variants]
     confirmed = (tone_confirmed(sweeps, tables.shape[2], det)
                  if sweeps is not None and det is not None else True)
+    n_settings = len(grid.match_combos()) * len(grid.gate_combos()) * len(fold_variants)
+    # preallocated: (n_settings, n_images) grows to gigabytes on a few thousand images
+    prot = np.zeros((n_settings, n_img), dtype=bool)
+    hits = np.zeros((n_settings, n_img), dtype=np.int32)
+    settings = []
     for ci, (fp, tol, occ_lo, occ_hi) in enumerate(grid.match_combos()):
         t = tables[:, ci]
         n, pur, sw, ch, rgb = (t[..., N_MATCHED], t[..., PURITY], t[..., SWITCHES],
@@ -494,17 +560,18 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         for mp, mt, mt_rgb in grid.gate_combos():
             need = np.where(rgb, mt_rgb, mt)
             enough = (n >= need) & valid[:, ci]
-            ok = enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2)) & confirmed
+            ok = (enough & (pur >= mp - 1e-6) & (sw >= 1) & (~rgb | (ch >= 2)) & confirmed
+                  ).any(axis=1)
+            n_enough = enough.sum(axis=1)
             for fold_params, fold_ok in fold_variants:
+                si = len(settings)
                 settings.append(Setting("default", (
                     ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
                     ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
                     ("min_tones_rgb", mt_rgb), *fold_params)))
-                prot.append(ok.any(axis=1) | fold_ok)
-                hits.append(enough.sum(axis=1))
-    if not settings:
-        return [], np.zeros((0, n_img), bool), np.zeros((0, n_img)), cand_total
-    return settings, np.array(prot), np.array(hits, dtype=float), cand_total
+                prot[si] = ok | fold_ok
+                hits[si] = n_enough
+    return settings, prot, hits, cand_total
 
 
 def paper_scores(peaks: list[dict], config: AppConfig, grid: PaperGrid
@@ -622,7 +689,7 @@ def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndar
     pos_groups : list of dict, optional
         `group_labels` of each positive.
     """
-    cands = np.asarray(clean_cands, dtype=float)
+    cands = np.asarray(clean_cands)  # may be a broadcast view: never copied
     out = []
     n_clean = clean_prot.shape[1]
     n_pos = pos_prot.shape[1]
@@ -637,9 +704,9 @@ def summarise(settings: list[Setting], clean_prot: np.ndarray, pos_prot: np.ndar
     detected = pos_prot.sum(axis=1).tolist()
     bounds = {k: (far_upper_bound(k, n_clean), two_sided_upper(k, n_clean))
               for k in set(false_alarms)}
-    denoms = (cands.sum(axis=1) if cands.ndim == 2
-              else np.full(len(settings), cands.sum())).tolist()
-    match_counts = np.asarray(clean_hits, dtype=float).sum(axis=1).tolist()
+    denoms = (cands.sum(axis=1, dtype=float) if cands.ndim == 2
+              else np.full(len(settings), cands.sum(dtype=float))).tolist()
+    match_counts = np.asarray(clean_hits).sum(axis=1, dtype=float).tolist()
     for si, s in enumerate(settings):
         k = int(false_alarms[si])
         denom = float(denoms[si])
@@ -675,6 +742,273 @@ def select_setting(summaries: list[Summary], target_far: float) -> tuple[Summary
     if ok:
         return max(ok, key=lambda s: (s.detection, -s.far_upper, -s.time_ms_per_image)), True
     return min(summaries, key=lambda s: (s.far_upper, -s.detection, s.time_ms_per_image)), False
+
+
+# ----------------------------------------------------------------------------- split
+
+
+# Manifest fields that name the source photo an image was made from: an explicit group, a
+# checksum or id of the source file, its path or name (build_clean_set.py's ``source``), or the
+# scene of a synthetic capture (synth's ``scene_name``, ``scene_photo``, ``scene: {"scene": ..}``).
+SOURCE_FIELDS = ("group", "source_group", "source_sha256", "source_id", "source_path", "source",
+                 "scene_name", "scene_photo", "scene", "sha256")
+# scikit-image names of one photograph (the stereo pair's two views are one scene)
+SOURCE_ALIASES = {"stereo_motorcycle_left": "motorcycle", "stereo_motorcycle_right": "motorcycle",
+                  "stereo_motorcycle": "motorcycle"}
+_IMAGE_SUFFIX = re.compile(r"\.(jpe?g|png|webp|tiff?|bmp|heic|heif|gif)$", re.IGNORECASE)
+# file-name suffixes that mark a variant of one source: "cat__crop2", "cat_v3", "cat-rot90"
+_VARIANT_SUFFIX = re.compile(
+    r"(?:__.*|[_-](?:v|var|variant|crop|aug|rot|q|scale|down|copy)\d+(?:\.\d+)?)+$")
+
+
+def source_keys(row: dict, path: str) -> tuple[str, ...]:
+    """Every name of the source photo an image was made from, as found in its manifest row.
+
+    Parameters
+    ----------
+    row : dict
+        The image's manifest row (may be empty).
+    path : str
+        The image's path.
+
+    Returns
+    -------
+    tuple of str
+        One key per `SOURCE_FIELDS` entry present, lower-cased: a path or file name is reduced
+        to its base name without image extension, a ``skimage:`` prefix is dropped and
+        `SOURCE_ALIASES` applied, so a scikit-image photo variant (``source: astronaut``), a
+        synthetic capture of the same photo (``scene: skimage:astronaut``) and one of a corpus
+        photo (``scene_photo: out/photos/pkg/a.jpg`` against ``source: pkg/a.jpg``) share a
+        key. Procedural scenes (``texture:...``) name no source. Without any, a file name
+        ending in a variant marker (``__anything``, ``_v3``, ``-crop2``, ``_rot90``, ``_q85``)
+        gives its stem, else the image is its own source (its absolute path).
+
+    Examples
+    --------
+    >>> source_keys({"source": "astronaut", "source_sha256": "AB12"}, "photos/000001.jpg")
+    ('src:ab12', 'src:astronaut')
+    >>> source_keys({"scene": {"scene": "skimage:astronaut"}}, "synth/000007.jpg")
+    ('src:astronaut',)
+    >>> source_keys({}, "clean/cat__crop2.jpg")
+    ('name:cat',)
+    """
+    keys = []
+    for field_name in SOURCE_FIELDS:
+        value = row.get(field_name)
+        if isinstance(value, dict):
+            value = value.get("scene")
+        if value is None or str(value).strip() == "":
+            continue
+        value = str(value).strip().lower()
+        if value.startswith("texture:"):
+            continue  # a fresh random render per image: no shared source
+        value = value.removeprefix("skimage:")
+        if "/" in value or "\\" in value or _IMAGE_SUFFIX.search(value):
+            value = _IMAGE_SUFFIX.sub("", value.replace("\\", "/").rsplit("/", 1)[-1])
+        value = SOURCE_ALIASES.get(value, value)
+        if value and "src:" + value not in keys:
+            keys.append("src:" + value)
+    if keys:
+        return tuple(keys)
+    stem = os.path.splitext(os.path.basename(str(path)))[0].lower()
+    base = _VARIANT_SUFFIX.sub("", stem)
+    if base and base != stem:
+        return ("name:" + base,)
+    return ("file:" + os.path.abspath(str(path)),)
+
+
+def source_groups(keys: list[tuple[str, ...]]) -> list[str]:
+    """Group label of each image: images sharing any source key, directly or through others,
+    form one group (connected components), labelled by the group's smallest key.
+
+    Parameters
+    ----------
+    keys : list of tuple of str
+        Per image, its `source_keys`.
+
+    Returns
+    -------
+    list of str
+        Per image, its group label.
+
+    Examples
+    --------
+    >>> source_groups([("src:a",), ("src:b", "src:c"), ("src:c",), ("src:a", "src:z")])
+    ['src:a', 'src:b', 'src:b', 'src:a']
+    """
+    parent: dict[str, str] = {}
+
+    def find(k: str) -> str:
+        parent.setdefault(k, k)
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    for ks in keys:
+        roots = sorted({find(k) for k in ks})
+        for r in roots[1:]:
+            parent[r] = roots[0]
+    return [find(ks[0]) for ks in keys]
+
+
+def stratum_key(row: dict, origin: str) -> str:
+    """Stratum of an image for the split: its origin (input folder), kind and preset.
+
+    Parameters
+    ----------
+    row : dict
+        Manifest row (``kind``: photo, steady, mains, pwm, texture, barcode; ``preset`` for
+        positives). Missing fields read as "-".
+    origin : str
+        Where the image came from, e.g. the input folder's name.
+
+    Examples
+    --------
+    >>> stratum_key({"kind": "mains"}, "synth")
+    'synth/mains/-'
+    """
+    return f"{origin}/{row.get('kind') or '-'}/{row.get('preset') or '-'}"
+
+
+def split_parts(groups: list[str], strata: list[str], *, fraction: float, seed: int
+                ) -> np.ndarray:
+    """Seeded, stratified split into a tuning and a certification part, whole groups at a time.
+
+    Parameters
+    ----------
+    groups : list of str
+        Per item, its `source_groups` label; every item of a group goes to the same part.
+    strata : list of str
+        Per item, its `stratum_key`; each stratum is split about ``fraction`` : 1 - fraction.
+    fraction : float
+        Target share of the certification part, in (0, 1), unitless.
+    seed : int
+        Split seed; the result depends only on (groups, strata, fraction, seed), not on the
+        order of the items.
+
+    Returns
+    -------
+    ndarray of bool, shape (n_items,)
+        True for items of the certification part.
+
+    Raises
+    ------
+    ValueError
+        If ``fraction`` is outside (0, 1) or the lists differ in length.
+
+    Notes
+    -----
+    Groups are visited largest first (ties in a seeded random order); each goes to the part that
+    keeps the running per-stratum counts closest, in squared count, to ``fraction`` of the items
+    assigned so far (a tie is broken by a seeded draw with probability ``fraction``). With many
+    small groups every stratum ends within about one group of its target; a group larger than
+    a stratum's share cannot be split and is not.
+
+    Examples
+    --------
+    >>> split_parts(["a", "a", "b", "c"], ["x"] * 4, fraction=0.5, seed=0).tolist()
+    [True, True, False, False]
+    """
+    if not 0 < fraction < 1:
+        raise ValueError(f"need 0 < fraction < 1, got fraction={fraction!r}")
+    if len(groups) != len(strata):
+        raise ValueError(f"need one stratum per item, got {len(groups)} groups and "
+                         f"{len(strata)} strata")
+    g_names = sorted(set(groups))
+    s_names = sorted(set(strata))
+    g_index = {g: i for i, g in enumerate(g_names)}
+    s_index = {s: i for i, s in enumerate(s_names)}
+    g_of = np.array([g_index[g] for g in groups], dtype=int)
+    counts = np.zeros((len(g_names), len(s_names)))
+    np.add.at(counts, (g_of, [s_index[s] for s in strata]), 1)
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(g_names))
+    order = order[np.argsort(-counts[order].sum(axis=1), kind="stable")]
+    cert_counts = np.zeros(len(s_names))
+    seen = np.zeros(len(s_names))
+    to_cert = np.zeros(len(g_names), dtype=bool)
+    for g in order:
+        c = counts[g]
+        goal = fraction * (seen + c)
+        cost_cert = float(np.sum((cert_counts + c - goal) ** 2))
+        cost_tune = float(np.sum((cert_counts - goal) ** 2))
+        draw = rng.random() < fraction
+        if cost_cert < cost_tune - 1e-9 or (abs(cost_cert - cost_tune) <= 1e-9 and draw):
+            to_cert[g] = True
+            cert_counts += c
+        seen += c
+    return to_cert[g_of]
+
+
+# ----------------------------------------------------------------------------- certification
+
+
+@dataclass(frozen=True)
+class Claim:
+    """What k false alarms on n clean images can show about a target false-alarm rate.
+
+    Attributes
+    ----------
+    false_alarms, n_clean : int
+        k and n.
+    far_upper : float
+        Exact one-sided Clopper-Pearson upper bound, unitless (`far_upper_bound`).
+    far_upper_two_sided : float
+        Upper end of the two-sided interval at the same confidence, unitless.
+    target_far : float
+        The target image false-alarm rate, unitless.
+    images_needed : int
+        Clean images with no false alarm needed to show the target (`images_needed`).
+    met : bool
+        ``far_upper <= target_far``: the only way a target is called met.
+    reason : str
+        One sentence saying why it is or is not met.
+    """
+
+    false_alarms: int
+    n_clean: int
+    far_upper: float
+    far_upper_two_sided: float
+    target_far: float
+    images_needed: int
+    met: bool
+    reason: str
+
+
+def claim(false_alarms: int, n_clean: int, target_far: float,
+          confidence: float = CONFIDENCE) -> Claim:
+    """Judge a target FAR from k false alarms on n clean images (exact one-sided bound).
+
+    A target is met only when the bound is <= the target; when n is below `images_needed`,
+    no outcome could show it, and the reason says how many images it needs.
+
+    Examples
+    --------
+    >>> c = claim(0, 1500, 1e-3)
+    >>> c.met, c.images_needed
+    (False, 2995)
+    >>> claim(0, 3000, 1e-3).met
+    True
+    """
+    k, n = int(false_alarms), int(n_clean)
+    bound = far_upper_bound(k, n, confidence)
+    two = two_sided_upper(k, n, confidence)
+    need = images_needed(target_far, confidence)
+    pct = f"{100 * confidence:g}%"
+    if bound <= target_far:
+        why = (f"{k}/{n} false alarms: FAR <= {bound:.3g} at {pct} (one-sided), within "
+               f"the target {target_far:g}")
+    elif n < need:
+        why = (f"{n} clean images cannot show FAR <= {target_far:g} at {pct} even with no false "
+               f"alarm (the smallest bound they can give is "
+               f"{far_upper_bound(0, n, confidence):.3g}); the target needs >= {need} with none")
+    else:
+        why = (f"{k}/{n} false alarms: FAR bound {bound:.3g} at {pct} is above the target "
+               f"{target_far:g}")
+    return Claim(false_alarms=k, n_clean=n, far_upper=bound, far_upper_two_sided=two,
+                 target_far=float(target_far), images_needed=need, met=bound <= target_far,
+                 reason=why)
 
 
 # ----------------------------------------------------------------------------- null model

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["clopper_pearson", "pareto_front", "percentile", "rate_with_ci"]
+__all__ = ["clopper_pearson", "pareto_front", "percentile", "rate_with_ci", "upper_bound"]
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -31,6 +31,7 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
 
     Notes
     -----
+    Computed by ``scipy.stats.binomtest(k, n).proportion_ci(level, method="exact")``:
     ``lo = B^-1(a; k, n - k + 1)`` and ``hi = B^-1(1 - a; k + 1, n - k)`` with
     ``a = (1 - level) / 2`` and ``B^-1`` the inverse regularized incomplete beta function. The
     interval covers the true proportion with probability >= level for every proportion.
@@ -42,19 +43,68 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
     >>> [round(b, 4) for b in clopper_pearson(5, 10)]
     [0.1871, 0.8129]
     """
-    from scipy.stats import beta
+    k, n = _check(k, n, level)
+    if n == 0:
+        return 0.0, 1.0
+    from scipy.stats import binomtest
 
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
+    return (0.0 if k == 0 else float(ci.low)), (1.0 if k == n else float(ci.high))
+
+
+def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
+    """Exact one-sided (Clopper-Pearson) upper confidence bound of a binomial proportion.
+
+    Parameters
+    ----------
+    k : int
+        Successes (e.g. false alarms), 0 <= k <= n.
+    n : int
+        Trials (e.g. clean images), >= 0. With n = 0 nothing is known and 1 is returned.
+    confidence : float, optional
+        One-sided confidence in (0, 1), unitless. Default 0.95.
+
+    Returns
+    -------
+    float
+        The p with P(Bin(n, p) <= k) = 1 - confidence; 1 when k = n.
+
+    Raises
+    ------
+    ValueError
+        If k, n or confidence are out of range.
+
+    Notes
+    -----
+    Computed by ``scipy.stats.binomtest(k, n, alternative="less").proportion_ci(confidence,
+    method="exact")``, i.e. ``B^-1(confidence; k + 1, n - k)``: the upper end of a two-sided
+    Clopper-Pearson interval at level ``2 * confidence - 1``. With k = 0 it is
+    ``1 - (1 - confidence) ** (1 / n)``.
+
+    Examples
+    --------
+    >>> round(upper_bound(0, 10), 4)
+    0.2589
+    >>> upper_bound(0, 2995) < 1e-3 < upper_bound(0, 2994)
+    True
+    """
+    k, n = _check(k, n, confidence, name="confidence")
+    if n == 0 or k == n:
+        return 1.0
+    from scipy.stats import binomtest
+
+    ci = binomtest(k, n, alternative="less").proportion_ci(confidence_level=confidence,
+                                                           method="exact")
+    return float(ci.high)
+
+
+def _check(k, n, level: float, name: str = "level") -> tuple[int, int]:
     k, n = int(k), int(n)
     if n < 0 or not 0 <= k <= max(n, 0):
         raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
     if not 0 < level < 1:
-        raise ValueError(f"need 0 < level < 1, got level={level!r}")
-    if n == 0:
-        return 0.0, 1.0
-    a = (1 - level) / 2
-    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(1 - a, k + 1, n - k))
-    return lo, hi
+        raise ValueError(f"need 0 < {name} < 1, got {name}={level!r}")
+    return k, n
 
 
 def rate_with_ci(k: int, n: int, level: float = 0.95) -> dict:

@@ -47,3 +47,13 @@ def test_pareto_front_hand_computed():
 def test_percentile_empty_is_nan():
     assert percentile([], 50) != percentile([], 50)
     assert percentile([1, 2, 3], 50) == 2.0
+
+
+def test_upper_bound_one_sided():
+    from lishield_guard.stats import upper_bound
+
+    assert upper_bound(0, 10) == pytest.approx(1 - 0.05 ** 0.1, rel=1e-9)
+    assert upper_bound(0, 0) == 1.0 and upper_bound(4, 4) == 1.0
+    assert upper_bound(5, 10) == pytest.approx(clopper_pearson(5, 10, level=0.9)[1], rel=1e-9)
+    with pytest.raises(ValueError, match="confidence"):
+        upper_bound(1, 10, confidence=0.0)

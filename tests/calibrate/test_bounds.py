@@ -39,3 +39,20 @@ def test_bound_grows_with_false_alarms_and_edges():
     assert far_upper_bound(7, 7) == 1.0
     with pytest.raises(ValueError):
         far_upper_bound(3, 2)
+
+
+@pytest.mark.parametrize(("k", "n"), [(0, 1), (0, 36), (1, 36), (3, 1500), (0, 3000)])
+def test_bound_is_scipys_exact_binomtest(k, n):
+    from scipy.stats import binomtest
+
+    want = binomtest(k, n, alternative="less").proportion_ci(0.95, method="exact").high
+    assert far_upper_bound(k, n) == pytest.approx(want, rel=1e-12)
+    two = binomtest(k, n).proportion_ci(0.95, method="exact").high
+    assert two_sided_upper(k, n) == pytest.approx(two, rel=1e-12)
+
+
+@pytest.mark.parametrize("target", [0.25, 0.1, 1e-2, 1e-3])
+@pytest.mark.parametrize("k", [0, 1, 3])
+def test_images_needed_is_the_smallest_n(target, k):
+    n = images_needed(target, false_alarms=k)
+    assert far_upper_bound(k, n) <= target < far_upper_bound(k, n - 1)
