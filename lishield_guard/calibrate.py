@@ -748,10 +748,14 @@ def select_setting(summaries: list[Summary], target_far: float) -> tuple[Summary
 
 
 # Manifest fields that name the source photo an image was made from: an explicit group, a
-# checksum or id of the source file, its path or name (build_clean_set.py's ``source``), or the
-# scene of a synthetic capture (synth's ``scene_name``, ``scene_photo``, ``scene: {"scene": ..}``).
-SOURCE_FIELDS = ("group", "source_group", "source_sha256", "source_id", "source_path", "source",
-                 "scene_name", "scene_photo", "scene", "sha256")
+# checksum or id of the source file, its path or name (build_clean_set.py's ``source``), the
+# scene of a synthetic capture (synth's ``scene_name``, ``scene_photo``, ``scene: {"scene": ..}``)
+# or, for a photo of the real-photo corpus itself (scripts/photo_corpus.py), its ``sha256``.
+SOURCE_FIELDS = ("group", "source_group", "source_sha256", "source_id", "source_path",
+                 "source_file", "source_photo", "source", "photo", "scene_name", "scene_photo",
+                 "scene", "sha256")
+# values that name where a photo came from, not which photo (the corpus manifest's ``source``)
+NOT_A_SOURCE = frozenset({"debian", "pypi", "skimage", "synth", "photo", "real-photo"})
 # scikit-image names of one photograph (the stereo pair's two views are one scene)
 SOURCE_ALIASES = {"stereo_motorcycle_left": "motorcycle", "stereo_motorcycle_right": "motorcycle",
                   "stereo_motorcycle": "motorcycle"}
@@ -778,8 +782,10 @@ def source_keys(row: dict, path: str) -> tuple[str, ...]:
         to its base name without image extension, a ``skimage:`` prefix is dropped and
         `SOURCE_ALIASES` applied, so a scikit-image photo variant (``source: astronaut``), a
         synthetic capture of the same photo (``scene: skimage:astronaut``) and one of a corpus
-        photo (``scene_photo: out/photos/pkg/a.jpg`` against ``source: pkg/a.jpg``) share a
-        key. Procedural scenes (``texture:...``) name no source. Without any, a file name
+        photo (``scene_photo: out/photos/images/debian/pkg/usr__share__a.jpg`` against
+        ``source_path: usr/share/a.jpg``) share a key. Procedural scenes (``texture:...``) and
+        registry names (`NOT_A_SOURCE`, the corpus manifest's ``source: debian``) name no
+        source. Without any, a file name
         ending in a variant marker (``__anything``, ``_v3``, ``-crop2``, ``_rot90``, ``_q85``)
         gives its stem, else the image is its own source (its absolute path).
 
@@ -800,11 +806,13 @@ def source_keys(row: dict, path: str) -> tuple[str, ...]:
         if value is None or str(value).strip() == "":
             continue
         value = str(value).strip().lower()
-        if value.startswith("texture:"):
-            continue  # a fresh random render per image: no shared source
+        if value.startswith("texture:") or value in NOT_A_SOURCE:
+            continue  # a fresh random render per image, or a registry: no shared photo
         value = value.removeprefix("skimage:")
         if "/" in value or "\\" in value or _IMAGE_SUFFIX.search(value):
-            value = _IMAGE_SUFFIX.sub("", value.replace("\\", "/").rsplit("/", 1)[-1])
+            # the corpus stores "a/b/c.jpg" as "a__b__c.jpg": both reduce to "c"
+            value = value.replace("\\", "/").replace("__", "/")
+            value = _IMAGE_SUFFIX.sub("", value.rsplit("/", 1)[-1])
         value = SOURCE_ALIASES.get(value, value)
         if value and "src:" + value not in keys:
             keys.append("src:" + value)

@@ -26,6 +26,11 @@ from lishield_guard.calibrate import Setting, claim, split_parts, stratum_key
     ({"source": "pkg-a/usr/share/beach.jpg", "source_sha256": "AB"}, "p/2.jpg",
      ("src:ab", "src:beach")),
     ({"group": "G7", "source": "astronaut"}, "x.jpg", ("src:g7", "src:astronaut")),
+    # a photo of the corpus itself (scripts/photo_corpus.py): "source" names the registry
+    ({"package": "p", "source": "debian", "path": "usr/share/a.jpg", "sha256": "S1",
+      "file": "images/debian/p/usr__share__a.jpg"}, "images/debian/p/usr__share__a.jpg",
+     ("src:s1",)),
+    ({"scene_photo": "out/photos/images/debian/p/usr__share__a.jpg"}, "s/3.jpg", ("src:a",)),
     # no manifest: a file name's variant marker is dropped, other names stay unique
     ({}, "clean/cat__crop2.jpg", ("name:cat",)),
     ({}, "clean/cat_v3.jpg", ("name:cat",)),
