@@ -25,7 +25,7 @@ Tuning and certification
 The bound of the setting picked as the most sensitive one whose bound meets the target, computed
 on the images it was picked on, is optimistic: among ~10^5 settings the winner sits just above
 the highest clean score by construction. So the clean images (and the positives) are split
-(`split_parts`): seeded, stratified by `stratum_key` (input folder, kind, preset), and whole
+(`split_parts`): seeded, stratified by `stratum_key` (folder, kind, preset, package), and whole
 source photos at a time (`source_keys`, `source_groups`: every variant of one photo, and every
 synthetic capture of it, on the same side). Selection sees the tuning part; the certified FAR
 bound and detection rate come from the certification part, for one setting, so they are
@@ -861,13 +861,14 @@ def source_groups(keys: list[tuple[str, ...]]) -> list[str]:
 
 
 def stratum_key(row: dict, origin: str) -> str:
-    """Stratum of an image for the split: its origin (input folder), kind and preset.
+    """Stratum of an image for the split: its origin (input folder), kind, preset and package.
 
     Parameters
     ----------
     row : dict
-        Manifest row (``kind``: photo, steady, mains, pwm, texture, barcode; ``preset`` for
-        positives). Missing fields read as "-".
+        Manifest row: ``kind`` (photo, steady, mains, pwm, texture, barcode), ``preset`` for
+        positives, ``package`` for photos of the real-photo corpus (and sets made from it).
+        Missing fields read as "-"; a missing package is left out.
     origin : str
         Where the image came from, e.g. the input folder's name.
 
@@ -875,8 +876,11 @@ def stratum_key(row: dict, origin: str) -> str:
     --------
     >>> stratum_key({"kind": "mains"}, "synth")
     'synth/mains/-'
+    >>> stratum_key({"package": "hugin-data"}, "photos")
+    'photos/-/-/hugin-data'
     """
-    return f"{origin}/{row.get('kind') or '-'}/{row.get('preset') or '-'}"
+    key = f"{origin}/{row.get('kind') or '-'}/{row.get('preset') or '-'}"
+    return f"{key}/{row['package']}" if row.get("package") else key
 
 
 def split_parts(groups: list[str], strata: list[str], *, fraction: float, seed: int
