@@ -446,6 +446,9 @@ def _iter_tar(path: str, *, max_bytes: int, sel: _Selector,
                                escaped=esc)
         if not info_cls.end_seen:
             raise _TruncatedArchiveError("the archive ends without its end-of-archive blocks")
+        if stream is raw and os.fstat(raw.fileno()).st_size % tarfile.BLOCKSIZE:
+            raise _TruncatedArchiveError(f"the file is not a whole number of "
+                                         f"{tarfile.BLOCKSIZE}-byte tar blocks")
         if stream is not raw:  # reach the compressed stream's end: its checksum is verified
             left = TAR_TAIL_MAX_BYTES
             while left > 0 and (chunk := stream.read(min(left, 1 << 20))):
@@ -475,6 +478,11 @@ def _iter_archive(path: str, **kw) -> Iterator[ScanItem]:
     except EOFError as exc:
         yield ScanItem(label, key, st.st_size, None, f"truncated archive: {exc}",
                        CODE_TRUNCATED_ARCHIVE, esc)
+    except tarfile.ReadError as exc:
+        cut = "unexpected end of data" in str(exc) or "truncated" in str(exc)
+        yield ScanItem(label, key, st.st_size, None,
+                       f"{'truncated' if cut else 'cannot read'} archive: {exc}",
+                       CODE_TRUNCATED_ARCHIVE if cut else CODE_UNREADABLE_ARCHIVE, esc)
     except (zipfile.BadZipFile, tarfile.TarError, zlib.error, OSError, ValueError,
             lzma.LZMAError) as exc:
         yield ScanItem(label, key, st.st_size, None, f"cannot read archive: {exc}",

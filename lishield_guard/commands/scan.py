@@ -72,13 +72,17 @@ def _summary(counts: Counter, codes: Counter, n_resumed: int, n_ignored: int,
     return text
 
 
-def _is_regular_or_missing(path: str) -> bool:
-    try:
-        return stat.S_ISREG(os.stat(path).st_mode)
-    except FileNotFoundError:
+def _is_stream(path: str) -> bool:
+    """True for outputs that are written as they are, never checked, resumed or re-read:
+    ``-``, ``/dev/stdout`` and other device paths, pipes and terminals."""
+    if path == "-" or path.startswith(("/dev/", "/proc/")):
         return True
-    except OSError:
+    try:
+        return not stat.S_ISREG(os.stat(path).st_mode)
+    except FileNotFoundError:
         return False
+    except OSError:
+        return True
 
 
 def scan_command(
@@ -151,7 +155,7 @@ def scan_command(
         raise _fail(f"--dask only accepts 'local', got {dask!r} (use --scheduler for a cluster)")
     if dask and scheduler:
         raise _fail("use either --dask local or --scheduler, not both")
-    if resume and (output == "-" or not _is_regular_or_missing(output)):
+    if resume and _is_stream(output):
         raise _fail("--resume needs --output FILE (a regular file)")
     if jobs < 0:
         raise _fail(f"--jobs must be >= 1, got {jobs}")
@@ -168,7 +172,7 @@ def scan_command(
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
         raise _fail(str(exc)) from None
-    if (output != "-" and not resume and os.path.isfile(output)
+    if (not _is_stream(output) and not resume and os.path.isfile(output)
             and os.path.getsize(output)):  # /dev/stdout, pipes and ttys are written as they are
         raise _fail(f"{output!r} exists; use --resume to continue it, or remove it")
 
@@ -246,7 +250,7 @@ def scan_command(
         if cluster is not None:
             cluster.close()
     whole = None
-    if output != "-" and os.path.isfile(output):  # the whole file: earlier runs' records too
+    if not _is_stream(output) and os.path.isfile(output):  # earlier runs' records too
         whole = tally_file(output, fmt)
     if not quiet:
         typer.echo(_summary(counts, codes, n_resumed, n_ignored, time.perf_counter() - t0,

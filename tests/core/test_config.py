@@ -129,3 +129,46 @@ def test_dataclass_validation_messages_name_the_field():
         DetectorConfig().replace(n_col_blocks=0)
     with pytest.raises(ConfigError, match="policy id"):
         Policy("", (PRESETS["table1-seq1"],))
+
+
+# --- #22 item 1: a partial config merges over the shipped one; no policy is an error
+
+
+def test_partial_config_keeps_shipped_policies_and_calibrated_values(tmp_path):
+    cfg = load_config(_write(tmp_path, "[detector]\nfit_min_rho = 0.85\n"))
+    shipped = default_config()
+    assert cfg.detector.fit_min_rho == 0.85
+    assert cfg.policies == shipped.policies and cfg.policies
+    # keys left out keep the shipped calibrated values, not the dataclass defaults
+    assert cfg.detector.replace(fit_min_rho=shipped.detector.fit_min_rho) == shipped.detector
+    assert cfg.detector.peak_false_prob == shipped.detector.peak_false_prob != \
+        DetectorConfig().peak_false_prob
+    assert cfg.limits == shipped.limits
+
+
+def test_partial_limits_merge_key_by_key(tmp_path):
+    cfg = load_config(_write(tmp_path, "[limits]\nmax_bytes = 1000\n"))
+    assert cfg.limits.max_bytes == 1000
+    assert cfg.limits.max_pixels == default_config().limits.max_pixels
+
+
+def test_policies_given_replace_the_shipped_ones(tmp_path):
+    cfg = load_config(_write(tmp_path, "[[policies]]\nid = \"blur\"\npresets = [\"table2-rgb\"]\n"))
+    assert [p.id for p in cfg.policies] == ["blur"]
+    assert cfg.detector == default_config().detector
+
+
+@pytest.mark.parametrize("text", ["policies = []\n", "policies = []\n[detector]\nm_att = 1\n"])
+def test_config_without_any_policy_is_refused(tmp_path, text):
+    with pytest.raises(ConfigError, match="no policy"):
+        load_config(_write(tmp_path, text))
+
+
+def test_merge_false_reads_the_file_alone(tmp_path):
+    cfg_text = dump_config(default_config())
+    assert load_config(_write(tmp_path, cfg_text), merge=False) == default_config()
+
+
+def test_limits_memory_budget_is_validated():
+    with pytest.raises(ConfigError, match="max_decode_bytes"):
+        Limits(max_decode_bytes=0)

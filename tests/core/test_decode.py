@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import struct
+import sys
 import zlib
 
 import numpy as np
@@ -122,3 +123,94 @@ def test_float_tiff_with_nan_is_rejected():
     arr[3, 3] = np.nan
     with pytest.raises(InvalidImageError):
         detect(_encode(Image.fromarray(arr), "TIFF"))
+
+
+# --- #22 item 7: truncated JPEGs beyond a small tolerance and memory bombs; item 9: narrow
+# JPEGs; item 4: only regular files are read
+
+
+def jpeg_declaring(n_cols: int, n_rows: int) -> bytes:
+    """A complete 16x16 JPEG whose SOF0 header claims n_cols x n_rows (a few hundred bytes)."""
+    data = bytearray(_encode(Image.new("RGB", (16, 16), (128, 90, 60)), "JPEG", quality=90))
+    i = data.find(b"\xff\xc0")
+    struct.pack_into(">HH", data, i + 5, n_rows, n_cols)
+    return bytes(data)
+
+
+def _jpeg(rng, shape, quality=90) -> bytes:
+    return _encode(Image.fromarray(rng.integers(0, 256, shape, dtype=np.uint8)), "JPEG",
+                   quality=quality)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_jpeg_declaring_a_huge_size_over_a_few_bytes_is_undecodable(fast):
+    data = jpeg_declaring(10_000, 10_000)
+    assert len(data) < 1000
+    with pytest.raises(CorruptImageError) as info:
+        decode(data, fast=fast, max_rows=1536)
+    assert info.value.code == "undecodable_image"
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9, 0.99])
+def test_truncated_jpeg_is_undecodable(rng, keep):
+    data = _jpeg(rng, (480, 640, 3))
+    with pytest.raises(CorruptImageError, match="truncated"):
+        decode(data[: int(len(data) * keep)])
+
+
+def test_jpeg_missing_only_its_eoi_marker_is_tolerated(rng):
+    data = _jpeg(rng, (240, 320))
+    assert data.endswith(b"\xff\xd9")
+    assert decode(data[:-2]).luma.shape == (240, 320)
+
+
+def test_memory_budget_is_checked_before_decoding(rng, monkeypatch):
+    dec = sys.modules["lishield_guard.decode"]  # the package's `decode` is the function
+
+    data = _jpeg(rng, (600, 800))
+    calls = []
+    monkeypatch.setattr(dec, "_decode_pixels", lambda *a, **k: calls.append(1))
+    with pytest.raises(ImageTooLargeError, match="max_decode_bytes"):
+        decode(data, limits=Limits(max_decode_bytes=dec.DECODE_BASE_BYTES + 600 * 800))
+    assert not calls  # refused from the header alone
+    monkeypatch.undo()
+    png = _encode(Image.new("L", (800, 600)), "PNG")
+    with pytest.raises(ImageTooLargeError, match="max_decode_bytes"):  # Pillow path too
+        decode(png, limits=Limits(max_decode_bytes=dec.DECODE_BASE_BYTES + 600 * 800))
+
+
+def test_memory_budget_counts_dct_downscaling(rng):
+    dec = sys.modules["lishield_guard.decode"]  # the package's `decode` is the function
+
+    data = _jpeg(rng, (4000, 200))
+    budget = dec.DECODE_BASE_BYTES + 4000 * 200 * dec.FAST_JPEG_BYTES_PER_PIXEL // 2
+    with pytest.raises(ImageTooLargeError):
+        decode(data, limits=Limits(max_decode_bytes=budget))
+    d = decode(data, limits=Limits(max_decode_bytes=budget), max_rows=2000)
+    assert d.row_scale == 2 and d.luma.shape == (2000, 100)
+
+
+@pytest.mark.parametrize("shape", [(65000, 1), (6200, 17), (4000, 3), (3073, 9)])
+def test_narrow_tall_jpegs_decode_at_reduced_scale(rng, shape):
+    d = decode(_jpeg(rng, shape), max_rows=1536)
+    s = round(d.row_scale)
+    assert s in (1, 2, 4, 8)
+    assert d.luma.shape == (-(-shape[0] // s), -(-shape[1] // s))
+    assert detect(_jpeg(rng, shape)).status in ("clean", "protected", "undetermined")
+
+
+def test_fifo_and_device_paths_are_refused_without_reading(tmp_path):
+    import os
+    import threading
+
+    fifo = tmp_path / "x.jpg"
+    os.mkfifo(fifo)
+    out = []
+    t = threading.Thread(target=lambda: out.append(pytest.raises(
+        UnsupportedImageError, decode, str(fifo))), daemon=True)
+    t.start()
+    t.join(10)
+    assert not t.is_alive(), "decoding a FIFO blocked"
+    assert "not a regular file" in str(out[0].value)
+    with pytest.raises(UnsupportedImageError, match="not a regular file"):
+        decode("/dev/zero")

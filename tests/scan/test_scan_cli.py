@@ -30,7 +30,7 @@ def test_from_list_and_records_contract(tmp_path, run_cli):
     lst.write_text(f"{imgs[0]}\n{tmp_path / 'note.txt'}\n{tmp_path / 'missing.jpg'}\n")
     out = tmp_path / "o.jsonl"
     res = run_cli("scan", imgs[1], "--from-list", lst, "-o", out, "--jobs", "1", "--quiet")
-    assert res.exit_code == 0
+    assert res.exit_code == 3  # input errors present, nothing protected
     recs = {Path(r["path"]).name: r for r in read_jsonl(out)}
     assert set(recs) == {"a.jpg", "b.jpg", "note.txt", "missing.jpg"}
     for r in recs.values():
@@ -47,8 +47,8 @@ def test_csv_output(tmp_path, run_cli):
     res = run_cli("scan", tmp_path / "imgs", "-o", out, "--format", "csv", "--quiet")
     assert res.exit_code == 0
     rows = list(csv.DictReader(out.open()))
-    assert len(rows) == 4 and list(rows[0]) == list(RECORD_FIELDS)
-    assert {r["protected"] for r in rows} == {"false", ""}
+    assert len(rows) == 3 and list(rows[0]) == list(RECORD_FIELDS)  # x.txt ignored
+    assert {r["protected"] for r in rows} == {"false"}
     assert read_done_keys(out, "csv") == {r["key"] for r in rows}
 
 
@@ -107,8 +107,8 @@ def test_dask_local_equals_local(tmp_path, run_cli):
         z.write(tmp_path / "imgs" / "0.jpg", "in/0.jpg")
         z.writestr("../evil.jpg", b"x")
     local, dsk = tmp_path / "local.jsonl", tmp_path / "dask.jsonl"
-    assert run_cli("scan", tmp_path / "imgs", "-o", local, "-j", "2", "--quiet").exit_code == 0
+    assert run_cli("scan", tmp_path / "imgs", "-o", local, "-j", "2", "--quiet").exit_code == 3
     res = run_cli("scan", tmp_path / "imgs", "-o", dsk, "-j", "2", "--dask", "local", "--quiet")
-    assert res.exit_code == 0
+    assert res.exit_code == 3
     a, b = _strip(read_jsonl(local)), _strip(read_jsonl(dsk))
     assert len(a) == 11 and a == b
