@@ -1,7 +1,9 @@
-"""Scenes as linear reflectance per channel: image files, skimage photos, procedural textures."""
+"""Scenes as linear reflectance per channel: image files, skimage photos, the real-photo
+corpus (``photos:DIR#INDEX``), procedural textures."""
 
 from __future__ import annotations
 
+import json
 import math
 from functools import lru_cache
 from pathlib import Path
@@ -12,11 +14,16 @@ import numpy as np
 from lishield_guard.errors import ConfigError, ImageDecodeError, InvalidImageError
 
 __all__ = [
+    "DEFAULT_PHOTO_DIR",
     "PHOTO_NAMES",
     "TEXTURE_KINDS",
+    "corpus_manifest",
+    "corpus_photo",
     "fit_to_sensor",
     "load_scene",
+    "parse_photo_scene",
     "photo_scene",
+    "photo_scene_names",
     "random_scene",
     "skimage_photo",
     "srgb_to_linear",
@@ -28,6 +35,9 @@ PHOTO_NAMES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "coins", "m
                "hubble_deep_field", "immunohistochemistry", "retina", "motorcycle", "grass",
                "gravel")
 TEXTURE_KINDS = ("blinds", "bricks", "fabric")
+# Real-photo corpus written by scripts/fetch_photos.py (manifest.jsonl + images/).
+DEFAULT_PHOTO_DIR = Path("out/photos")
+PHOTOS_PREFIX = "photos:"
 
 _SRGB_LUT = None
 
@@ -123,6 +133,166 @@ def skimage_photo(name: str) -> np.ndarray:
     return out
 
 
+# -- real-photo corpus ---------------------------------------------------------------------
+
+def _manifest_path(photo_dir: str | Path) -> Path:
+    return Path(photo_dir) / "manifest.jsonl"
+
+
+@lru_cache(maxsize=8)
+def _read_manifest(path: str, mtime_ns: int) -> tuple[dict, ...]:
+    rows = []
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            if not line.strip():
+                continue
+            try:
+                row = json.loads(line)
+                row["file"]  # noqa: B018 - every row must name its copy
+            except (ValueError, KeyError, TypeError):
+                raise ConfigError(f"{path}:{lineno}: not a photo manifest line") from None
+            rows.append(row)
+    return tuple(rows)
+
+
+def corpus_manifest(photo_dir: str | Path = DEFAULT_PHOTO_DIR) -> tuple[dict, ...]:
+    """Rows of the real-photo corpus manifest, in manifest order.
+
+    Parameters
+    ----------
+    photo_dir : str or Path
+        Corpus directory written by ``scripts/fetch_photos.py`` (``manifest.jsonl`` and
+        ``images/``). Default ``out/photos``.
+
+    Returns
+    -------
+    tuple of dict
+        One dict per photo with at least ``file`` (relative to ``photo_dir``); the fetcher also
+        writes ``package``, ``version``, ``source``, ``path``, ``n_rows``, ``n_cols``,
+        ``file_bytes`` and ``sha256``. Re-read when the manifest file changes.
+
+    Raises
+    ------
+    ConfigError
+        No manifest in ``photo_dir``, or a line that is not a manifest row.
+    """
+    path = _manifest_path(photo_dir)
+    try:
+        mtime_ns = path.stat().st_mtime_ns
+    except FileNotFoundError:
+        raise ConfigError(f"no photo corpus manifest at {str(path)!r}; "
+                          "run scripts/fetch_photos.py") from None
+    return _read_manifest(str(path.resolve()), mtime_ns)
+
+
+def photo_scene_names(photo_dir: str | Path = DEFAULT_PHOTO_DIR) -> list[str]:
+    """Scene names ``"photos:DIR#INDEX"`` of every corpus photo, for `load_scene`.
+
+    Parameters
+    ----------
+    photo_dir : str or Path
+        Corpus directory (see `corpus_manifest`); DIR in the names is spelled as given.
+
+    Returns
+    -------
+    list of str
+        ``[f"photos:{photo_dir}#{i}" for i in range(n_photos)]``; INDEX is the manifest line
+        (0-based), so a name is stable for one manifest. Record the photo's ``sha256`` (from
+        `corpus_manifest`) next to it where reproducibility across corpus versions matters.
+
+    Raises
+    ------
+    ConfigError
+        No manifest in ``photo_dir``.
+
+    Examples
+    --------
+    >>> names = photo_scene_names("out/photos")           # doctest: +SKIP
+    >>> load_scene(names[0], 480, 640, rng=np.random.default_rng(0)).shape  # doctest: +SKIP
+    (480, 640, 3)
+    """
+    n = len(corpus_manifest(photo_dir))
+    return [f"{PHOTOS_PREFIX}{photo_dir}#{i}" for i in range(n)]
+
+
+def parse_photo_scene(name: str) -> tuple[Path, int]:
+    """Split ``"photos:DIR#INDEX"`` into (DIR, INDEX); ``"photos:DIR"`` alone is an error.
+
+    Raises
+    ------
+    ConfigError
+        Not of that form, or INDEX is not a non-negative integer.
+    """
+    if not name.startswith(PHOTOS_PREFIX) or "#" not in name:
+        raise ConfigError(f"photo scene must be 'photos:DIR#INDEX', got {name!r}")
+    folder, _, idx = name[len(PHOTOS_PREFIX):].rpartition("#")
+    if not idx.isdigit():
+        raise ConfigError(f"photo scene index must be an integer >= 0, got {idx!r} in {name!r}")
+    return Path(folder or "."), int(idx)
+
+
+def corpus_photo(photo_dir: str | Path, index: int, *, min_side_px: int | None = None
+                 ) -> np.ndarray:
+    """Corpus photo number ``index`` as read-only sRGB uint8 of shape (n_rows, n_cols, 3).
+
+    Parameters
+    ----------
+    photo_dir : str or Path
+        Corpus directory (see `corpus_manifest`).
+    index : int
+        Manifest line, 0-based.
+    min_side_px : int, optional
+        JPEGs larger than needed are decoded at 1/2, 1/4 or 1/8 scale (libjpeg's draft mode),
+        keeping both sides >= this many pixels when the file allows. None decodes full size.
+
+    Returns
+    -------
+    ndarray of uint8, shape (n_rows, n_cols, 3)
+        EXIF orientation applied; grey and 16-bit images expanded to 8-bit RGB.
+
+    Raises
+    ------
+    ConfigError
+        No manifest, index out of range, or the listed file is missing.
+    ImageDecodeError
+        The file cannot be decoded.
+    """
+    rows = corpus_manifest(photo_dir)
+    if not 0 <= index < len(rows):
+        raise ConfigError(f"photo index {index} out of range: the corpus in {str(photo_dir)!r} "
+                          f"has {len(rows)} photos")
+    path = (Path(photo_dir) / rows[index]["file"]).resolve()
+    return _decode_photo(str(path), min_side_px)
+
+
+@lru_cache(maxsize=8)
+def _decode_photo(path: str, min_side_px: int | None) -> np.ndarray:
+    from PIL import Image, ImageOps
+
+    try:
+        with Image.open(path) as im:
+            if min_side_px is not None and im.format == "JPEG":
+                n_cols, n_rows = im.size
+                frac = min_side_px / max(1, min(n_rows, n_cols))
+                if frac < 1.0:  # draft keeps the decoded size >= the requested one
+                    im.draft("RGB", (math.ceil(n_cols * frac), math.ceil(n_rows * frac)))
+            im = ImageOps.exif_transpose(im)
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                a = np.asarray(im, dtype=np.float64)
+                top = 65535.0 if a.max(initial=0.0) > 255 else 255.0
+                arr = _to_rgb_uint8(a / top)
+            else:
+                arr = np.asarray(im.convert("RGB"))
+    except FileNotFoundError:
+        raise ConfigError(f"corpus photo missing: {path!r}; re-run scripts/fetch_photos.py"
+                          ) from None
+    except Exception as exc:  # Pillow raises many types for bad files
+        raise ImageDecodeError(f"cannot read corpus photo {path!r}: {exc}") from None
+    out = np.ascontiguousarray(arr)
+    out.setflags(write=False)
+    return out
+
+
 def photo_scene(image, n_rows: int, n_cols: int, *, rng: np.random.Generator | None = None,
                 min_crop: float = 1.0) -> np.ndarray:
     """Linear reflectance of an sRGB image array fitted to the sensor.
@@ -151,13 +321,16 @@ def photo_scene(image, n_rows: int, n_cols: int, *, rng: np.random.Generator | N
 
 def load_scene(source: str | Path | np.ndarray, n_rows: int, n_cols: int, *,
                rng: np.random.Generator | None = None, min_crop: float = 1.0) -> np.ndarray:
-    """Scene from an array, an image file, ``skimage:NAME`` or ``texture:KIND``.
+    """Scene from an array, an image file, ``skimage:NAME``, ``photos:DIR#INDEX`` or
+    ``texture:KIND``.
 
     Parameters
     ----------
     source : str, Path or ndarray
-        Image array, path to an image file, ``"skimage:astronaut"`` (see `PHOTO_NAMES`) or
-        ``"texture:blinds"`` (see `TEXTURE_KINDS`; needs ``rng`` or uses seed 0).
+        Image array, path to an image file, ``"skimage:astronaut"`` (see `PHOTO_NAMES`),
+        ``"photos:out/photos#12"`` (photo 12 of the real-photo corpus; see
+        `photo_scene_names`) or ``"texture:blinds"`` (see `TEXTURE_KINDS`; needs ``rng`` or
+        uses seed 0).
     n_rows, n_cols : int
         Sensor size in pixels.
     rng : numpy.random.Generator, optional
@@ -172,7 +345,7 @@ def load_scene(source: str | Path | np.ndarray, n_rows: int, n_cols: int, *,
     Raises
     ------
     ConfigError
-        Unknown skimage or texture name.
+        Unknown skimage or texture name; bad ``photos:`` name, index or missing corpus.
     ImageDecodeError
         The file cannot be read as an image.
     """
@@ -182,6 +355,14 @@ def load_scene(source: str | Path | np.ndarray, n_rows: int, n_cols: int, *,
     if s.startswith("skimage:"):
         return photo_scene(skimage_photo(s.split(":", 1)[1]), n_rows, n_cols, rng=rng,
                            min_crop=min_crop)
+    if s.startswith(PHOTOS_PREFIX):
+        folder, index = parse_photo_scene(s)
+        if not 0.0 < min_crop <= 1.0:
+            raise ConfigError(f"need 0 < min_crop={min_crop!r} <= 1")
+        # Decode big JPEGs at reduced scale, never below what the smallest crop needs.
+        need_px = math.ceil(max(n_rows, n_cols) / min_crop)
+        return photo_scene(corpus_photo(folder, index, min_side_px=need_px), n_rows, n_cols,
+                           rng=rng, min_crop=min_crop)
     if s.startswith("texture:"):
         kind = s.split(":", 1)[1]
         return texture_scene(kind, n_rows, n_cols,
@@ -274,8 +455,11 @@ def _smooth_field(n_rows: int, n_cols: int, *, rng: np.random.Generator,
 
 
 def random_scene(n_rows: int, n_cols: int, *, rng: np.random.Generator,
-                 texture_prob: float = 0.0) -> tuple[np.ndarray, dict]:
-    """A random skimage photo with a random crop, or (with ``texture_prob``) a texture.
+                 texture_prob: float = 0.0, photo_dir: str | Path | None = None
+                 ) -> tuple[np.ndarray, dict]:
+    """A random photo with a random crop, or (with ``texture_prob``) a texture.
+
+    Photos are scikit-image's bundled ones, or with ``photo_dir`` the real-photo corpus.
 
     Parameters
     ----------
@@ -285,17 +469,29 @@ def random_scene(n_rows: int, n_cols: int, *, rng: np.random.Generator,
         Source of every random choice.
     texture_prob : float
         Probability of a procedural texture instead of a photo, in [0, 1].
+    photo_dir : str or Path, optional
+        Corpus directory (``scripts/fetch_photos.py``): draw a corpus photo, uniformly over
+        the manifest, instead of a scikit-image one. None (default) keeps the scikit-image
+        photos and the exact random draws of earlier versions.
 
     Returns
     -------
     reflectance : ndarray of shape (n_rows, n_cols, 3), float32
     params : dict
-        JSON-ready description: ``{"scene": "skimage:NAME", "crop": ...}`` or texture params.
+        JSON-ready description: ``{"scene": "skimage:NAME"}``, ``{"scene":
+        "photos:DIR#INDEX", "package": ..., "sha256": ...}`` or texture params.
     """
     if rng.random() < texture_prob:
         kind = str(rng.choice(TEXTURE_KINDS))
         refl, p = texture_scene(kind, n_rows, n_cols, rng=rng)
         return refl, {"scene": f"texture:{kind}", **p}
+    if photo_dir is not None:
+        rows = corpus_manifest(photo_dir)
+        index = int(rng.integers(len(rows)))
+        name = f"{PHOTOS_PREFIX}{photo_dir}#{index}"
+        return (load_scene(name, n_rows, n_cols, rng=rng, min_crop=0.5),
+                {"scene": name, "package": rows[index].get("package"),
+                 "sha256": rows[index].get("sha256")})
     name = str(rng.choice(PHOTO_NAMES))
     return (photo_scene(skimage_photo(name), n_rows, n_cols, rng=rng, min_crop=0.5),
             {"scene": f"skimage:{name}"})
