@@ -34,7 +34,8 @@ Positives (label 1, kind ``"barcode"``):
 - 20% rotated by 90 or 270 degrees, half as an EXIF orientation tag only, half baked into pixels;
 - scene: a procedural texture (20%) or a photo with a random crop: a real photograph of the
   ``out/photos`` corpus (80% of photos, through the `real_photo_scenes` hook, when
-  `synth.scene` lists that corpus) or a scikit-image photo.
+  `synth.scene` lists that corpus; packages reserved for independent evaluation left out) or
+  a scikit-image photo.
 
 Negatives (label 0): 30% steady light (kind ``"steady"``), 25% mains flicker (``"mains"``:
 100 or 120 Hz, depth uniform 0.05-1), 25% PWM dimming (``"pwm"``: frequency log-uniform
@@ -74,6 +75,7 @@ __all__ = [
     "EMITTER_ALLOW",
     "EMITTER_FIELDS",
     "MIXES",
+    "RESERVED_PHOTO_PACKAGES",
     "SIZES",
     "Mix",
     "demo_images",
@@ -461,26 +463,81 @@ def sample_emitter(spec, *, rng: np.random.Generator, mix: Mix) -> dict:
             if phase == "continuous" else 1}
 
 
-def real_photo_scenes() -> tuple[str, ...]:
-    """Hook: paths of the real-photo scenes (``out/photos`` corpus) the default mix may use.
+# Photo packages the issue (#21) reserves for an independent evaluation: never used as scenes.
+RESERVED_PHOTO_PACKAGES = (
+    "gcompris-qt-data", "opencv-doc", "mypaint-data-extras", "lomiri-wallpapers-16.04",
+    "lomiri-wallpapers-20.04", "budgie-backgrounds", "mate-backgrounds",
+    "plasma-workspace-wallpapers", "palapeli-data", "scikit-learn", "pywavelets", "mahotas",
+    "imgaug")
 
-    Returns ``synth.scene.list_photo_scenes()`` when `synth.scene` provides it and the corpus
-    is present, else ``()`` (the mix then keeps scikit-image photos and textures). Sorted, so
-    a dataset seed picks the same photos on every machine holding the same corpus.
+
+def _reserved_photo(row: dict) -> bool:
+    name = str(row.get("package", "")).lower().replace("_", "-")
+    full = f"{name}-{str(row.get('version', '')).split(':')[-1]}"
+    return any(name == r or full.startswith(r + ".") or full == r
+               for r in RESERVED_PHOTO_PACKAGES)
+
+
+def real_photo_scenes() -> tuple[str, ...]:
+    """Hook: names of the real-photo scenes (``out/photos`` corpus) the default mix may use.
+
+    Uses ``synth.scene.photo_scene_names()`` (``"photos:DIR#INDEX"``, DIR relative to the
+    working directory) or, failing that, ``synth.scene.list_photo_scenes()``; returns ``()``
+    when neither exists or the corpus is absent (the mix then keeps scikit-image photos and
+    textures). Photos of the packages in `RESERVED_PHOTO_PACKAGES` are left out. The order is
+    the corpus manifest's, so a dataset seed picks the same photos from the same corpus;
+    `render_item` records each photo's package and sha256.
     """
     from synth import scene
 
-    lister = getattr(scene, "list_photo_scenes", None)
+    lister = getattr(scene, "photo_scene_names", None) or getattr(scene, "list_photo_scenes",
+                                                                  None)
     return () if lister is None else _listed_photos(lister)
 
 
 @functools.lru_cache(maxsize=4)
 def _listed_photos(lister) -> tuple[str, ...]:
-    """The lister's photos, sorted; listed once per process (the corpus is read-only)."""
+    """The lister's photos minus reserved packages; listed once per process."""
+    from synth import scene
+
     try:
-        return tuple(sorted(str(x) for x in lister()))
-    except (OSError, LookupError):
+        names = [str(x) for x in lister()]
+    except (OSError, LookupError, ConfigError):
         return ()
+    rows = _corpus_rows(names[0]) if names else None
+    if rows is not None and len(rows) == len(names):
+        names = [n for n, r in zip(names, rows, strict=True) if not _reserved_photo(r)]
+    elif any(n.startswith("photos:") for n in names) and hasattr(scene, "corpus_manifest"):
+        return ()  # cannot check the packages: use no real photo rather than a reserved one
+    return tuple(names)
+
+
+def _corpus_rows(name: str):
+    """Manifest rows of the corpus holding scene ``name`` (``photos:DIR#INDEX``), or None."""
+    from synth import scene
+
+    if not name.startswith("photos:") or not hasattr(scene, "corpus_manifest"):
+        return None
+    try:
+        folder, _ = scene.parse_photo_scene(name)
+        return scene.corpus_manifest(folder)
+    except (OSError, LookupError, ConfigError):
+        return None
+
+
+def _real_photo(name: str, n_rows: int, n_cols: int, rng: np.random.Generator):
+    """Reflectance and manifest description of real-photo scene ``name`` (random crop)."""
+    from synth import scene
+
+    rows = _corpus_rows(name)
+    if rows is not None:
+        folder, index = scene.parse_photo_scene(name)
+        arr = scene.corpus_photo(folder, index, min_side_px=max(n_rows, n_cols))
+        row = rows[index]
+        desc = {"scene": name, **{k: row[k] for k in ("package", "version", "path", "sha256")
+                                  if k in row}}
+        return scene.photo_scene(arr, n_rows, n_cols, rng=rng, min_crop=0.5), desc
+    return scene.load_scene(name, n_rows, n_cols, rng=rng, min_crop=0.5), {"scene": name}
 
 
 def _make_light(p: dict):
@@ -533,8 +590,7 @@ def render_item(p: dict) -> tuple[bytes, dict]:
         scene = load_scene(p["scene_name"], n_rows, n_cols)
         scene_desc = {"scene": p["scene_name"]}
     elif p.get("scene_photo"):
-        scene = load_scene(p["scene_photo"], n_rows, n_cols, rng=scene_rng, min_crop=0.5)
-        scene_desc = {"scene": p["scene_photo"]}
+        scene, scene_desc = _real_photo(p["scene_photo"], n_rows, n_cols, scene_rng)
     elif p["scene_kind"] == "texture":
         kind = str(scene_rng.choice(("blinds", "bricks", "fabric")))
         scene, sp = texture_scene(kind, n_rows, n_cols, rng=scene_rng)

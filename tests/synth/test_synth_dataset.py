@@ -213,6 +213,7 @@ def test_real_photo_hook(monkeypatch, tmp_path):
     from synth import dataset as ds
     from synth import scene
 
+    monkeypatch.delattr(scene, "photo_scene_names", raising=False)
     monkeypatch.setattr(scene, "list_photo_scenes", lambda: [], raising=False)
     assert ds.real_photo_scenes() == ()
     photo = tmp_path / "p.png"
@@ -223,6 +224,32 @@ def test_real_photo_hook(monkeypatch, tmp_path):
     assert real and all(p["scene_photo"] == str(photo) for p in real)
     _, rec = render_item(real[0])
     assert rec["scene"] == {"scene": str(photo)}
+
+
+def test_real_photo_corpus_names_skip_reserved_packages(monkeypatch, tmp_path):
+    from synth import dataset as ds
+    from synth import scene
+
+    rows = [{"file": "a.png", "package": "hugin-data", "version": "2022.0.0", "sha256": "aa"},
+            {"file": "b.png", "package": "lomiri-wallpapers", "version": "20.04.0-2"},
+            {"file": "c.png", "package": "palapeli-data", "version": "4:22.12.3-1"},
+            {"file": "d.png", "package": "scikit-learn", "version": "1.5"}]
+    for r in rows:
+        Image.fromarray(np.full((40, 60, 3), 100, np.uint8)).save(tmp_path / r["file"])
+    names = [f"photos:{tmp_path}#{i}" for i in range(len(rows))]
+    monkeypatch.setattr(scene, "photo_scene_names", lambda: names, raising=False)
+    monkeypatch.setattr(scene, "corpus_manifest", lambda folder: rows, raising=False)
+    monkeypatch.setattr(scene, "parse_photo_scene",
+                        lambda n: (tmp_path, int(n.rpartition("#")[2])), raising=False)
+    monkeypatch.setattr(scene, "corpus_photo", lambda folder, i, min_side_px=None: np.asarray(
+        Image.open(tmp_path / rows[i]["file"])), raising=False)
+    assert ds.real_photo_scenes() == (names[0],)
+    p = next(q for i in range(40)
+             if (q := sample_item(0, seed=i, mix=MIXES["default"], size=(32, 48)))[
+                 "scene_kind"] == "real-photo")
+    _, rec = render_item(p)
+    assert rec["scene"] == {"scene": names[0], "package": "hugin-data",
+                            "version": "2022.0.0", "sha256": "aa"}
 
 
 def test_easy_mono_rgb_mixes():
