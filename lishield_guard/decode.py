@@ -44,6 +44,10 @@ _JPEG_EOI = b"\xff\xd9"
 # JPEG through libjpeg-turbo 7.0 bytes per decoded pixel, PNG through Pillow 17.5.
 DECODE_BASE_BYTES = 32 * 1024 * 1024  # fixed cost of a detection beyond the pixels
 FAST_JPEG_BYTES_PER_PIXEL = 8
+# A progressive (multi-scan) JPEG keeps every DCT coefficient of the full-size image, whatever
+# the output scale: 2 bytes per sample, up to 3 samples per pixel (4:4:4).
+PROGRESSIVE_COEF_BYTES_PER_PIXEL = 6
+_JPEG_MULTI_SCAN_SOF = (b"\xff\xc2", b"\xff\xc6", b"\xff\xca", b"\xff\xce")
 PILLOW_BYTES_PER_PIXEL = 20
 WIDE_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I", "F")  # more than 8 bits per sample
 JPEG_SCALES = (1, 2, 4, 8)  # DCT-domain downscaling factors of libjpeg-turbo
@@ -235,6 +239,12 @@ def check_budget(n_rows: int, n_cols: int, *, bytes_per_pixel: float, scale: int
     return need
 
 
+def jpeg_is_progressive(data: bytes) -> bool:
+    """True when a JPEG's frame header (before its first scan) is progressive."""
+    head = data[: data.find(_JPEG_SOS)] if _JPEG_SOS in data else data
+    return any(m in head for m in _JPEG_MULTI_SCAN_SOF)
+
+
 def _jpeg_complete(data: bytes) -> bool:
     """True when an EOI marker follows the last start-of-scan (entropy-coded data never holds
     ``FF DA`` or ``FF D9``: a 0xFF byte there is followed by 0x00 or a restart marker)."""
@@ -384,8 +394,10 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast
     min_rows = max_rows if fast and max_rows and n_rows >= 2 * max_rows else 0
     if fast and data.startswith(_JPEG_MAGIC):
         scale = jpeg_scale(n_rows, min_rows)
-        check_budget(n_rows, n_cols, bytes_per_pixel=FAST_JPEG_BYTES_PER_PIXEL, scale=scale,
-                     limits=limits)
+        per_px = FAST_JPEG_BYTES_PER_PIXEL
+        if jpeg_is_progressive(data):  # coefficients of the full image, at any scale
+            per_px += PROGRESSIVE_COEF_BYTES_PER_PIXEL * scale * scale
+        check_budget(n_rows, n_cols, bytes_per_pixel=per_px, scale=scale, limits=limits)
     pixels, is_color = _decode_pixels(data, want_rgb=want_rgb, fast=fast, min_rows=min_rows,
                                       limits=limits)
     row_scale = n_rows / pixels.shape[0]
