@@ -747,13 +747,16 @@ def select_setting(summaries: list[Summary], target_far: float) -> tuple[Summary
 # ----------------------------------------------------------------------------- split
 
 
-# Manifest fields that name the source photo an image was made from: an explicit group, a
-# checksum or id of the source file, its path or name (build_clean_set.py's ``source``), the
-# scene of a synthetic capture (synth's ``scene_name``, ``scene_photo``, ``scene: {"scene": ..}``)
-# or, for a photo of the real-photo corpus itself (scripts/photo_corpus.py), its ``sha256``.
+# Manifest fields that name the source photo an image was made from. First tier: an explicit
+# group, a checksum, id or path of the source file (build_clean_set.py's real-photo variants:
+# ``source_sha256``, ``source_path``), the scene of a synthetic capture (synth's ``scene_name``,
+# ``scene_photo``, ``scene: {"scene": ..}``). Second tier, read only when the first names
+# nothing, as these fields mean different things in different manifests: ``source`` (a
+# scikit-image photo's name in build_clean_set.py's photo variants, but the package of its
+# real-photo variants and the registry in the corpus manifest) and the corpus's own ``sha256``.
 SOURCE_FIELDS = ("group", "source_group", "source_sha256", "source_id", "source_path",
-                 "source_file", "source_photo", "source", "photo", "scene_name", "scene_photo",
-                 "scene", "sha256")
+                 "source_file", "source_photo", "scene_name", "scene_photo", "scene")
+SOURCE_FIELDS_GENERIC = ("source", "photo", "sha256")
 # values that name where a photo came from, not which photo (the corpus manifest's ``source``)
 NOT_A_SOURCE = frozenset({"debian", "pypi", "skimage", "synth", "photo", "real-photo"})
 # scikit-image names of one photograph (the stereo pair's two views are one scene)
@@ -778,28 +781,43 @@ def source_keys(row: dict, path: str) -> tuple[str, ...]:
     Returns
     -------
     tuple of str
-        One key per `SOURCE_FIELDS` entry present, lower-cased: a path or file name is reduced
-        to its base name without image extension, a ``skimage:`` prefix is dropped and
-        `SOURCE_ALIASES` applied, so a scikit-image photo variant (``source: astronaut``), a
-        synthetic capture of the same photo (``scene: skimage:astronaut``) and one of a corpus
-        photo (``scene_photo: out/photos/images/debian/pkg/usr__share__a.jpg`` against
-        ``source_path: usr/share/a.jpg``) share a key. Procedural scenes (``texture:...``) and
-        registry names (`NOT_A_SOURCE`, the corpus manifest's ``source: debian``) name no
-        source. Without any, a file name
-        ending in a variant marker (``__anything``, ``_v3``, ``-crop2``, ``_rot90``, ``_q85``)
-        gives its stem, else the image is its own source (its absolute path).
+        One key per `SOURCE_FIELDS` entry present (or, if none, per `SOURCE_FIELDS_GENERIC`
+        entry), lower-cased: a path or file name is reduced to its base name without image
+        extension, a ``skimage:`` prefix is dropped and `SOURCE_ALIASES` applied, so a
+        scikit-image photo variant (``source: astronaut``), a synthetic capture of the same
+        photo (``scene: skimage:astronaut``), and a corpus photo's variant (``source_path:
+        usr/share/a.jpg``) and synthetic capture (``scene_photo:
+        out/photos/images/debian/pkg/usr__share__a.jpg``) share a key. Procedural scenes
+        (``texture:...``) and registry names (`NOT_A_SOURCE`, the corpus manifest's ``source:
+        debian``) name no source. Without any, a file name ending in a variant marker
+        (``__anything``, ``_v3``, ``-crop2``, ``_rot90``, ``_q85``) gives its stem, else the
+        image is its own source (its absolute path).
 
     Examples
     --------
-    >>> source_keys({"source": "astronaut", "source_sha256": "AB12"}, "photos/000001.jpg")
-    ('src:ab12', 'src:astronaut')
+    >>> source_keys({"source": "astronaut"}, "photos/000001.jpg")
+    ('src:astronaut',)
+    >>> source_keys({"source": "hugin-data", "source_path": "usr/share/hugin/Lake.jpg",
+    ...              "source_sha256": "AB12"}, "realphotos/000001.jpg")
+    ('src:ab12', 'src:lake')
     >>> source_keys({"scene": {"scene": "skimage:astronaut"}}, "synth/000007.jpg")
     ('src:astronaut',)
     >>> source_keys({}, "clean/cat__crop2.jpg")
     ('name:cat',)
     """
+    keys = _named_sources(row, SOURCE_FIELDS) or _named_sources(row, SOURCE_FIELDS_GENERIC)
+    if keys:
+        return keys
+    stem = os.path.splitext(os.path.basename(str(path)))[0].lower()
+    base = _VARIANT_SUFFIX.sub("", stem)
+    if base and base != stem:
+        return ("name:" + base,)
+    return ("file:" + os.path.abspath(str(path)),)
+
+
+def _named_sources(row: dict, names: tuple[str, ...]) -> tuple[str, ...]:
     keys = []
-    for field_name in SOURCE_FIELDS:
+    for field_name in names:
         value = row.get(field_name)
         if isinstance(value, dict):
             value = value.get("scene")
@@ -816,13 +834,7 @@ def source_keys(row: dict, path: str) -> tuple[str, ...]:
         value = SOURCE_ALIASES.get(value, value)
         if value and "src:" + value not in keys:
             keys.append("src:" + value)
-    if keys:
-        return tuple(keys)
-    stem = os.path.splitext(os.path.basename(str(path)))[0].lower()
-    base = _VARIANT_SUFFIX.sub("", stem)
-    if base and base != stem:
-        return ("name:" + base,)
-    return ("file:" + os.path.abspath(str(path)),)
+    return tuple(keys)
 
 
 def source_groups(keys: list[tuple[str, ...]]) -> list[str]:

@@ -23,9 +23,10 @@ from lishield_guard.calibrate import Setting, claim, split_parts, stratum_key
     # corpus photos: a path is reduced to its base name, so both spellings meet
     ({"scene_photo": "out/photos/pkg-a/usr/share/Beach.JPG",
       "scene": {"scene": "out/photos/pkg-a/usr/share/Beach.JPG"}}, "s/1.jpg", ("src:beach",)),
-    ({"source": "pkg-a/usr/share/beach.jpg", "source_sha256": "AB"}, "p/2.jpg",
-     ("src:ab", "src:beach")),
-    ({"group": "G7", "source": "astronaut"}, "x.jpg", ("src:g7", "src:astronaut")),
+    # build_clean_set.py's real-photo variants: "source" is then the package, not the photo
+    ({"source": "pkg-a", "source_path": "usr/share/beach.jpg", "source_sha256": "AB"},
+     "p/2.jpg", ("src:ab", "src:beach")),
+    ({"group": "G7", "source": "astronaut"}, "x.jpg", ("src:g7",)),
     # a photo of the corpus itself (scripts/photo_corpus.py): "source" names the registry
     ({"package": "p", "source": "debian", "path": "usr/share/a.jpg", "sha256": "S1",
       "file": "images/debian/p/usr__share__a.jpg"}, "images/debian/p/usr__share__a.jpg",
@@ -54,12 +55,15 @@ def test_source_keys_unique_when_nothing_is_shared(row, path):
 def test_source_groups_join_through_any_shared_key():
     """A photo shipped twice under two names (one checksum) and a synthetic capture of one of
     the names end up in one group."""
-    keys = [cal.source_keys({"source": "a.jpg", "source_sha256": "s1"}, "1.jpg"),
-            cal.source_keys({"source": "b.jpg", "source_sha256": "s1"}, "2.jpg"),
-            cal.source_keys({"scene_photo": "out/photos/x/b.jpg"}, "3.jpg"),
-            cal.source_keys({"source": "c.jpg"}, "4.jpg")]
+    keys = [cal.source_keys({"source": "pkg", "source_path": "a.jpg", "source_sha256": "s1"},
+                            "1.jpg"),
+            cal.source_keys({"source": "pkg", "source_path": "b.jpg", "source_sha256": "s1"},
+                            "2.jpg"),
+            cal.source_keys({"scene_photo": "out/photos/images/debian/x/b.jpg"}, "3.jpg"),
+            cal.source_keys({"source": "pkg", "source_path": "c.jpg", "source_sha256": "s2"},
+                            "4.jpg")]
     g = cal.source_groups(keys)
-    assert g[0] == g[1] == g[2] != g[3]
+    assert g[0] == g[1] == g[2] != g[3]  # one package is not one photo
 
 
 def _corpus(seed: int = 1):
