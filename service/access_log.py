@@ -113,5 +113,6 @@ class RequestContextMiddleware:
         self.log.info("request", extra={"fields": {
             "event": "access", "request_id": state.get("request_id"), "method": scope["method"],
             "path": scope["path"], "route": route, "status": status, "outcome": outcome,
-            "code": code, "protected": state.get("protected"), "policy": state.get("policy"),
+            "code": code, "verdict": state.get("verdict_status"),
+            "protected": state.get("protected"), "policy": state.get("policy"),
             "bytes": received, "duration_ms": round(elapsed_s * 1e3, 3)}})
