@@ -24,8 +24,9 @@ def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
 
 
 def _read_list(src: str) -> list[str]:
-    try:
-        text = sys.stdin.read() if src == "-" else Path(src).read_text(encoding="utf-8")
+    try:  # names that are not UTF-8 survive as surrogate escapes (os.fsdecode's form)
+        raw = sys.stdin.buffer.read() if src == "-" else Path(src).read_bytes()
+        text = raw.decode("utf-8", errors="surrogateescape")
     except OSError as exc:
         raise _fail(f"cannot read --from-list {src!r}: {exc.strerror}") from None
     return [ln.rstrip("\r") for ln in text.splitlines() if ln.strip()]

@@ -232,6 +232,21 @@ def test_names_that_are_not_utf8_are_recorded_losslessly(tmp_path, jobs):
     assert res.returncode == 0 and len(read_jsonl(out)) == 5
 
 
+def test_list_file_with_non_utf8_names(tmp_path):
+    d = tmp_path / "d"
+    write_images(d, ["a.jpg"])
+    bad = os.fsencode(d) + b"/caf\xe9.jpg"
+    with open(bad, "wb") as fh:
+        fh.write(jpeg_bytes(3))
+    lst = tmp_path / "list.txt"
+    lst.write_bytes(os.fsencode(d / "a.jpg") + b"\n" + bad + b"\n")
+    out = tmp_path / "o.jsonl"
+    res = _cli("scan", "--from-list", lst, "-o", out, "-j", "1", "--quiet")
+    recs = read_jsonl(out) if out.exists() else []
+    assert res.returncode == 0, (res.stderr.decode(errors="replace"), recs)
+    assert sorted(r["path"] for r in recs) == [f"{d}/a.jpg", f"{d}/caf\\xe9.jpg"]
+
+
 # --------------------------------------------------------------------- 6: truncated tars
 
 
