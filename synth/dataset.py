@@ -34,8 +34,8 @@ Positives (label 1, kind ``"barcode"``):
 - 20% rotated by 90 or 270 degrees, half as an EXIF orientation tag only, half baked into pixels;
 - scene: a procedural texture (20%) or a photo with a random crop: a real photograph of the
   ``out/photos`` corpus (80% of photos, through the `real_photo_scenes` hook, when
-  `synth.scene` lists that corpus; packages reserved for independent evaluation left out) or
-  a scikit-image photo.
+  `synth.scene` lists that corpus; each photo weighted 1/sqrt(photos of its package);
+  packages reserved for independent evaluation left out) or a scikit-image photo.
 
 Negatives (label 0): 30% steady light (kind ``"steady"``), 25% mains flicker (``"mains"``:
 100 or 120 Hz, depth uniform 0.05-1), 25% PWM dimming (``"pwm"``: frequency log-uniform
@@ -59,6 +59,7 @@ import json
 import math
 import os
 import warnings
+from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -356,7 +357,7 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
     photos = real_photo_scenes() if mix.real_photo_prob > 0 else ()
     if p["scene_kind"] == "photo" and photos and rng.random() < mix.real_photo_prob:
         p["scene_kind"] = "real-photo"
-        p["scene_photo"] = str(photos[int(rng.integers(len(photos)))])
+        p["scene_photo"] = str(photos[int(rng.choice(len(photos), p=_photo_probs(photos)))])
     p["noise"] = bool(mix.noise)
     if label:
         p["nominal"] = bool(not p["attack"] and p["coverage"]["fraction"] >= 1.0
@@ -510,6 +511,21 @@ def _listed_photos(lister) -> tuple[str, ...]:
     elif any(n.startswith("photos:") for n in names) and hasattr(scene, "corpus_manifest"):
         return ()  # cannot check the packages: use no real photo rather than a reserved one
     return tuple(names)
+
+
+@functools.lru_cache(maxsize=4)
+def _photo_probs(names: tuple[str, ...]) -> np.ndarray:
+    """Draw probability of each real-photo scene: 1/sqrt(photos of its package), normalised,
+    so one large package (e.g. a planetarium's textures) does not make up most scenes."""
+    rows = _corpus_rows(names[0]) if names else None
+    if rows is None:
+        return np.full(len(names), 1.0 / max(len(names), 1))
+    from synth import scene
+
+    pkgs = [str(rows[scene.parse_photo_scene(n)[1]].get("package", n)) for n in names]
+    size = Counter(pkgs)
+    w = np.array([1.0 / math.sqrt(size[k]) for k in pkgs])
+    return w / w.sum()
 
 
 def _corpus_rows(name: str):

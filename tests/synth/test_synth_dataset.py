@@ -252,6 +252,20 @@ def test_real_photo_corpus_names_skip_reserved_packages(monkeypatch, tmp_path):
                             "version": "2022.0.0", "sha256": "aa"}
 
 
+def test_real_photos_weighted_by_package_size(monkeypatch, tmp_path):
+    from synth import dataset as ds
+    from synth import scene
+
+    rows = [{"file": "a.png", "package": "one"}] + [{"file": f"{i}.png", "package": "big"}
+                                                    for i in range(4)]
+    names = tuple(f"photos:{tmp_path}#{i}" for i in range(len(rows)))
+    monkeypatch.setattr(scene, "corpus_manifest", lambda folder: rows, raising=False)
+    monkeypatch.setattr(scene, "parse_photo_scene",
+                        lambda n: (tmp_path, int(n.rpartition("#")[2])), raising=False)
+    # 1/sqrt(1) for the lone photo, 1/sqrt(4) for each of the big package's four
+    np.testing.assert_allclose(ds._photo_probs(names), [1 / 3] + [1 / 6] * 4)
+
+
 def test_easy_mono_rgb_mixes():
     easy = [sample_item(1, seed=i, mix=MIXES["easy"], size=(64, 96)) for i in range(300)]
     assert not any(p["attack"] or p["ambient_ratio"] or p["downscale"] > 1 or p["rotation_deg"]
