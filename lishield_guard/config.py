@@ -132,6 +132,13 @@ class DetectorConfig:
         estimate jitters between windows, or a PWM light whose fundamental and harmonic
         dominate different parts of the frame, can look like two alternating tones; the
         look-alike fits those rows as well as the barcode. -inf turns the check off.
+    screen_false_prob : float or None
+        First stage: a plane goes on to the pattern search only when some short-time track
+        has ``screen_min_frames`` frames whose peak passes the significance test at this
+        per-frame false-pass probability (looser than ``peak_false_prob``, so every frame
+        that the tone tracks count also passes the screen). None turns the screen off.
+    screen_min_frames : int
+        Frames a track must hold above the screen's threshold (>= 1).
     fast_decode : bool
         Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
         False decodes full colour with Pillow first (the reference the fast path is measured
@@ -181,6 +188,8 @@ class DetectorConfig:
     fit_min_rho_periodic: float = 1.0
     fit_min_gain_periodic: float = math.inf
     tone_min_fit_gain: float = -math.inf
+    screen_false_prob: float | None = 0.01
+    screen_min_frames: int = 2
     fast_decode: bool = True
     max_decode_rows: int = 1536
 
@@ -226,6 +235,12 @@ class DetectorConfig:
         if math.isnan(self.tone_min_fit_gain) or self.tone_min_fit_gain == math.inf:
             raise ConfigError(f"need tone_min_fit_gain < inf (-inf: off), got "
                               f"{self.tone_min_fit_gain!r}")
+        if self.screen_false_prob is not None and not 0 < self.screen_false_prob < 1:
+            raise ConfigError(f"need 0 < screen_false_prob < 1 (or None: no screen), got "
+                              f"screen_false_prob={self.screen_false_prob!r}")
+        if int(self.screen_min_frames) != self.screen_min_frames or self.screen_min_frames < 1:
+            raise ConfigError(f"need integer screen_min_frames >= 1, got "
+                              f"screen_min_frames={self.screen_min_frames!r}")
         if not self.fit_max_leak_rgb >= 0:
             raise ConfigError(f"need fit_max_leak_rgb >= 0 (0: off), got "
                               f"{self.fit_max_leak_rgb!r}")

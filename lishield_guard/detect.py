@@ -19,10 +19,12 @@ from lishield_guard.config import (
     default_config,
 )
 from lishield_guard.decode import Decoded, decode
+from lishield_guard.emitter import cycles_range, emitter_variants, variant_label
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
 from lishield_guard.modelfit import refine
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles, merge_blocks
+from lishield_guard.screen import screen_plane
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
@@ -229,20 +231,33 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
     sweep (computed once per axis for all specs, when first needed)."""
     out = []
+    screens = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
+                                    min_frames=det.screen_min_frames)
+               for pa in planes.values()}
+    screened = [(pid, spec) for pid, spec in specs
+                if _screen_passes(spec_planes(spec, planes), screens)]
 
     @cache
     def periods() -> list[float]:
-        return _periods(planes["L"], specs, det)
+        return _periods(planes["L"], screened, det)
 
     @cache
     def sweeps() -> dict[str, list[dict]]:
-        return _axis_sweeps(planes, specs, det, periods())
+        return _axis_sweeps(planes, screened, det, periods())
 
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
         if chans is None:
             continue
         m = match_spec(spec, chans, det)
+        if (pid, spec) not in screened:
+            best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
+            m = replace(m, protected=False, reason=(
+                f"first stage: no column-coherent stripes (at most {best.frames} frame(s) of "
+                f"a track above the p={best.false_prob:g} noise threshold, "
+                f"{det.screen_min_frames} needed); pattern search skipped"))
+            out.append((pid, m))
+            continue
         if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps()[spec.name],
                                                                           det):
             m = replace(m, protected=False, reason=(
@@ -289,6 +304,11 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 m = replace(m, sweep=sw)
         out.append((pid, m))
     return out
+
+
+def _screen_passes(chans: dict[str, PlaneAnalysis] | None, screens: dict) -> bool:
+    """Whether any plane carrying a spec's channels passed the first stage (`screen`)."""
+    return chans is not None and any(screens[id(pa)].passed for pa in chans.values())
 
 
 def tone_check_on(det: DetectorConfig) -> bool:
@@ -405,7 +425,8 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         chans = spec_planes(spec, planes)
         for c, pa in (chans or {}).items():
             if pa.blocks is not None:
-                by_plane.setdefault(id(pa), (pa, []))[1].append((spec, c))
+                by_plane.setdefault(id(pa), (pa, []))[1].extend(
+                    (v, c) for v in emitter_variants(spec))
     scale = scale_range_cpr_per_hz(det)
     out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
     for pa, targets in by_plane.values():
@@ -418,7 +439,7 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
             if sm is None:
                 continue
-            info = {**sm.to_dict(), "channel": c}
+            info = {**sm.to_dict(), "channel": c, "emitter": variant_label(spec)}
             if det.model_fit:
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
                 mf = refine(blocks, spec, c, starts, period_range_rows=rng,
@@ -427,7 +448,26 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 if mf is not None:
                     info["fit"] = mf.to_dict()
             out[spec.name].append(info)
-    return out
+    return {name: _best_variants(infos) for name, infos in out.items()}
+
+
+def _variant_rank(info: dict) -> tuple:
+    """How well an emitter variant's sweep entry explains the rows: an exact fit's gain over
+    the steady look-alike first (when it reached `config.FIT_RHO_FLOOR`), then the grid's
+    margin over the look-alike."""
+    fit = info.get("fit")
+    good = fit is not None and fit["rho"] >= FIT_RHO_FLOOR
+    return (good, fit["gain"] if good else -math.inf, info["rho"] - info["rho_lookalike"])
+
+
+def _best_variants(infos: list[dict]) -> list[dict]:
+    """One sweep entry per channel: the emitter variant that explains the rows best."""
+    best: dict[str, dict] = {}
+    for info in infos:
+        c = info["channel"]
+        if c not in best or _variant_rank(info) > _variant_rank(best[c]):
+            best[c] = info
+    return list(best.values())
 
 
 def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
@@ -470,8 +510,8 @@ def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
 def _period_range_rows(spec: BarcodeSpec, det: DetectorConfig) -> tuple[float, float]:
     """Pattern periods M/f_B in rows that the scale range and f_B range allow."""
     s_lo, s_hi = scale_range_cpr_per_hz(det)
-    f_b_min = spec.n_tones * 80.0
-    return spec.n_tones / (spec.f1_hz * s_hi), spec.n_tones / (f_b_min * s_lo)
+    c_lo, c_hi = cycles_range(spec.f1_hz)
+    return spec.n_tones * c_lo / (spec.f1_hz * s_hi), spec.n_tones * c_hi / (spec.f1_hz * s_lo)
 
 
 def _frame_period_range(spec: BarcodeSpec, det: DetectorConfig, n_rows: int
@@ -498,17 +538,24 @@ def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list
     """Best fold fit of ``spec`` over its channels' planes (mean rho over channels)."""
     if not periods or any(pa.common is None for pa in chans.values()):
         return None
-    fits = []
-    for c, pa in chans.items():
-        fm = fold_match(pa.common.astype(np.float64), spec, c,
-                        period_range_rows=_period_range_rows(spec, det), periods=periods,
-                        refine=False)
-        if fm is None:
-            return None
-        fits.append(fm)
-    return {**fits[0].to_dict(), "rho": round(float(np.mean([f.rho for f in fits])), 4),
-            "rho_lookalike": round(float(np.mean([f.rho_lookalike for f in fits])), 4),
-            "fold_snr": round(float(min(f.fold_snr for f in fits)), 2), "channels": len(fits)}
+    best = None
+    for variant in emitter_variants(spec):
+        fits = []
+        for c, pa in chans.items():
+            fm = fold_match(pa.common.astype(np.float64), variant, c,
+                            period_range_rows=_period_range_rows(spec, det), periods=periods,
+                            refine=False, scale_range_cpr_per_hz=scale_range_cpr_per_hz(det))
+            if fm is None:
+                return None
+            fits.append(fm)
+        info = {**fits[0].to_dict(), "rho": float(np.mean([f.rho for f in fits])),
+                "rho_lookalike": float(np.mean([f.rho_lookalike for f in fits])),
+                "fold_snr": float(min(f.fold_snr for f in fits)), "channels": len(fits),
+                "emitter": variant_label(variant)}
+        if best is None or info["rho"] - info["rho_lookalike"] > (best["rho"]
+                                                                 - best["rho_lookalike"]):
+            best = info
+    return best
 
 
 def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.fft
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 
+from lishield_guard.emitter import cycles_range, phase_mode
 from lishield_guard.profile import gaussian_smooth
 from lishield_guard.spec import BarcodeSpec
 
@@ -35,6 +36,7 @@ N_CYCLE_STEPS = 160
 EXPOSURE_FRACTIONS = (0.0, 0.03, 0.08, 0.16)  # box smoothing, as a fraction of one slot
 MIN_PERIODS = 2.0
 HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which the fold ignores content
+MAX_TONE_CPR = 0.45  # a tone above this is aliased or lost in the JPEG grid
 
 
 @dataclass(frozen=True)
@@ -192,12 +194,9 @@ def refine_period(x: np.ndarray, period_rows: float, *, span: float = 0.03,
 
 
 def _cycle_grid(spec: BarcodeSpec) -> np.ndarray:
-    """c_1 = f_1 / f_B values searched: from 1 to f_1 / (80 Hz x M) (the flicker rule)."""
-    f_b_min = spec.n_tones * 80.0
-    c_hi = max(1.0, spec.f1_hz / f_b_min)
-    if c_hi <= 1:
-        return np.ones(1)
-    return np.exp(np.linspace(0.0, math.log(c_hi), N_CYCLE_STEPS))
+    """c_1 = f_1 / f_B values searched, geometric over `emitter.cycles_range`."""
+    c_lo, c_hi = cycles_range(spec.f1_hz)
+    return np.exp(np.linspace(math.log(c_lo), math.log(c_hi), N_CYCLE_STEPS))
 
 
 @lru_cache(maxsize=256)
@@ -218,7 +217,9 @@ def _templates(spec: BarcodeSpec, channel: str, n_bins: int,
     slot = np.minimum((phase * m).astype(int), m - 1)
     within = phase * m - slot  # position inside the slot, [0, 1)
     ratio = fs[order[slot]] / spec.f1_hz  # f_n / f_1 per sample
-    on = (((cyc[:, None] * ratio[None, :] * within[None, :]) % 1.0) < spec.duty
+    # slots since the tone's timer started: its own slot, or the pattern start (continuous)
+    elapsed = within + slot if phase_mode(spec) == "continuous" else within
+    on = (((cyc[:, None] * ratio[None, :] * elapsed[None, :]) % 1.0) < spec.duty
           ).astype(np.float32)  # (n_cycles, n_bins * sub)
     out = np.empty((cyc.size, len(exposures), n_bins), np.float32)
     slot_samples = n_bins * sub / m
@@ -232,7 +233,8 @@ def _templates(spec: BarcodeSpec, channel: str, n_bins: int,
 
 def fold_match(x: np.ndarray, spec: BarcodeSpec, channel: str, *,
                period_range_rows: tuple[float, float], periods: list[float] | None = None,
-               refine: bool = True) -> FoldMatch | None:
+               refine: bool = True,
+               scale_range_cpr_per_hz: tuple[float, float] | None = None) -> FoldMatch | None:
     """Best correlation of the spec's channel template with x folded at candidate periods.
 
     Parameters
@@ -248,6 +250,9 @@ def fold_match(x: np.ndarray, spec: BarcodeSpec, channel: str, *,
     refine : bool
         Refine each candidate with `refine_period` (callers that share periods between specs
         refine once themselves).
+    scale_range_cpr_per_hz : (float, float), optional
+        Row time x downscale range: f_1 must appear at c_1 M / period cycles per row within
+        it. None leaves c_1 bounded only by MAX_TONE_CPR for the fastest tone.
     """
     lo, hi = period_range_rows
     if periods is None:
@@ -271,12 +276,22 @@ def fold_match(x: np.ndarray, spec: BarcodeSpec, channel: str, *,
         # repeatability: power of the folded pattern over what its bins' scatter predicts
         fold_noise = within * float(np.sum(1.0 / np.maximum(counts, 1)))
         snr = power / max(fold_noise, 1e-30)
-        tpl = _templates(spec, channel, n_bins)
+        # c_1 such that f_1 lands at c_1 M / period cycles per row within the scale range
+        # and the fastest tone stays below MAX_TONE_CPR
+        f1_cpr = cycles * spec.n_tones / period
+        ok = f1_cpr * (max(spec.all_freqs_hz) / spec.f1_hz) <= MAX_TONE_CPR
+        if scale_range_cpr_per_hz is not None:
+            s_lo, s_hi = scale_range_cpr_per_hz
+            ok &= (f1_cpr >= spec.f1_hz * s_lo) & (f1_cpr <= spec.f1_hz * s_hi)
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            continue
+        tpl = _templates(spec, channel, n_bins)[idx]
         r, k = _best_rho(tpl, y, n_bins)  # one polarity only: more light is brighter
         if best is None or r > best.rho:
             r_alt, _ = _best_rho(_lookalike_templates(n_bins), y, n_bins)
-            best = FoldMatch(spec.name, r, float(period), float(cycles[k[0]]), float(snr),
-                             float(x.size / period), r_alt)
+            best = FoldMatch(spec.name, r, float(period), float(cycles[idx[k[0]]]),
+                             float(snr), float(x.size / period), r_alt)
     return best
 
 
@@ -330,10 +345,10 @@ class SweepMatch:
 
 @lru_cache(maxsize=64)
 def _sweep_cycles(f1_hz: float, n_tones: int) -> tuple[float, ...]:
-    """c_1 values swept: 1 to f_1 / (80 Hz x M) in steps of SWEEP_CYCLE_STEP."""
-    c_hi = max(1.0, f1_hz / (n_tones * 80.0))
-    n = max(2, int(math.ceil((c_hi - 1.0) / SWEEP_CYCLE_STEP)) + 1)
-    return tuple(np.linspace(1.0, c_hi, n).tolist())
+    """c_1 values swept over `emitter.cycles_range` in steps of SWEEP_CYCLE_STEP."""
+    c_lo, c_hi = cycles_range(f1_hz)
+    n = max(2, int(math.ceil((c_hi - c_lo) / SWEEP_CYCLE_STEP)) + 1)
+    return tuple(np.linspace(c_lo, c_hi, n).tolist())
 
 
 def _period_grid(n_rows: int, lo: float, hi: float, drift: float) -> np.ndarray:

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
+from lishield_guard.emitter import cycles_range, phase_mode
 from lishield_guard.fold import (
     block_coherence_t,
     highpass_gain,
@@ -151,14 +152,23 @@ class _KnotMaker:
         self.rel = fs[list(spec.slot_order())] / spec.f1_hz
         self.duty = spec.duty
         self.m = spec.n_tones
+        self.continuous = phase_mode(spec) == "continuous"
 
     def __call__(self, cycles_f1: float) -> tuple[np.ndarray, np.ndarray]:
         starts, ends = [], []
         for k, r in enumerate(self.rel):
             c = cycles_f1 * r
-            a = k + np.arange(int(math.ceil(c))) / c
+            if self.continuous:  # the tone's timer ran since the pattern start: c k cycles
+                j = np.arange(math.floor(c * k) - 1, math.ceil(c * (k + 1)) + 1)
+                a = np.maximum(j / c, float(k))
+                b = np.minimum((j + self.duty) / c, k + 1.0)
+                keep = b > a
+                a, b = a[keep], b[keep]
+            else:
+                a = k + np.arange(int(math.ceil(c))) / c
+                b = np.minimum(a + self.duty / c, k + 1.0)
             starts.append(a)
-            ends.append(np.minimum(a + self.duty / c, k + 1.0))
+            ends.append(b)
         a, b = np.concatenate(starts), np.concatenate(ends)
         cum = np.concatenate([[0.0], np.cumsum(b - a)])
         u = np.empty(2 * a.size + 2)
@@ -278,10 +288,11 @@ class _Objective:
     with the physical bounds (`refine`)."""
 
     def __init__(self, knots: _KnotMaker, n_rows: int, period_range_rows: tuple[float, float],
-                 c_hi: float, scale_range_cpr_per_hz: tuple[float, float], f1_hz: float) -> None:
+                 c_range: tuple[float, float], scale_range_cpr_per_hz: tuple[float, float],
+                 f1_hz: float) -> None:
         self.knots, self.m = knots, knots.m
         self.index = np.arange(n_rows, dtype=np.float64)
-        self.p_range, self.c_hi = period_range_rows, c_hi
+        self.p_range, self.c_range = period_range_rows, c_range
         self.s_range, self.f1_hz = scale_range_cpr_per_hz, f1_hz
 
     def rows(self, th) -> np.ndarray:
@@ -292,7 +303,8 @@ class _Objective:
     def allowed(self, th) -> bool:
         """Whether ``th`` lies within the period, c_1, exposure and scale bounds."""
         p, c1, _, e = th
-        return bool(self.p_range[0] <= p <= self.p_range[1] and 1.0 <= c1 <= self.c_hi
+        return bool(self.p_range[0] <= p <= self.p_range[1]
+                    and self.c_range[0] <= c1 <= self.c_range[1]
                     and 0.0 <= e <= MAX_EXPOSURE_SLOTS
                     and self.s_range[0] <= c1 * self.m / (p * self.f1_hz) <= self.s_range[1])
 
@@ -344,18 +356,19 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     n = blocks_log.shape[1]
     m = spec.n_tones
     s_lo, s_hi = scale_range_cpr_per_hz
-    c_hi = max(1.0, spec.f1_hz / (80.0 * m))
+    c_lo, c_hi = cycles_range(spec.f1_hz)
     best: tuple | None = None
     knots = _KnotMaker(spec, channel)
-    model = _Objective(knots, n, (p_lo, p_hi), c_hi, scale_range_cpr_per_hz, spec.f1_hz)
+    model = _Objective(knots, n, (p_lo, p_hi), (c_lo, c_hi), scale_range_cpr_per_hz,
+                       spec.f1_hz)
     for _, p0, c0, phi0, e0 in starts:
         hp = _highpass(n, p0 / (2 * math.pi * HIGHPASS_CYCLES))
         p0 = min(max(p0, p_lo), p_hi)
-        grid_start = np.array([p0, min(max(c0, 1.0), c_hi), phi0,
+        grid_start = np.array([p0, min(max(c0, c_lo), c_hi), phi0,
                                min(max(e0, 0.0), MAX_EXPOSURE_SLOTS)])
         y = hp(x)
         # c_1 such that f_1 lands at c_1 M / p0 cycles per row within the scale range
-        c_scan = (max(1.0, s_lo * p0 * spec.f1_hz / m), min(c_hi, s_hi * p0 * spec.f1_hz / m))
+        c_scan = (max(c_lo, s_lo * p0 * spec.f1_hz / m), min(c_hi, s_hi * p0 * spec.f1_hz / m))
         scanned = np.array([p0, *_scan_start(knots, y, m, p0, c_scan,
                                              p0 / (2 * math.pi * HIGHPASS_CYCLES))])
         loss = model.loss(hp, y)
@@ -460,8 +473,7 @@ def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
     yy = float(y @ y)
     c_lo, c_hi = c_range
     if not yy > 0 or c_lo > c_hi:
-        c = min(max(c_lo, 1.0), max(c_hi, 1.0))
-        return c, 0.0, 0.0
+        return c_lo, 0.0, 0.0
     k_max = int(max(1, min(period_rows / 2.0 - 1.0,
                            SCAN_HARMONICS_PER_CYCLE * m * c_hi * knots.rel.max() + 8)))
     k = np.arange(1, k_max + 1, dtype=np.float64)

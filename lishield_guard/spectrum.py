@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.fft
 from scipy.ndimage import uniform_filter1d
 
 from lishield_guard.profile import detrend_profiles
@@ -210,11 +211,13 @@ def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
     nfft = PAD_FACTOR * w
     fc = _frames(common, w, hop)
     fc = (fc - fc.mean(axis=-1, keepdims=True)) * win
-    spec = np.abs(np.fft.rfft(fc, nfft, axis=-1)) ** 2  # (n_frames, nfft/2+1)
+    spec = np.abs(scipy.fft.rfft(fc.astype(np.float32), nfft, axis=-1)).astype(np.float64) ** 2
     fr = _frames(resid, w, hop)
-    fr = (fr - fr.mean(axis=-1, keepdims=True)) * win
-    noise = (np.abs(np.fft.rfft(fr, nfft, axis=-1)) ** 2).sum(axis=0) * noise_scale
-    noise = uniform_filter1d(noise, size=2 * PAD_FACTOR + 1, axis=-1, mode="nearest")
+    fr = ((fr - fr.mean(axis=-1, keepdims=True)) * win).astype(np.float32)
+    # the noise floor is smooth: estimated on the unpadded grid (3 bins, as wide as the
+    # padded grid's 2 PAD_FACTOR + 1) and interpolated onto the padded one
+    coarse = (np.abs(scipy.fft.rfft(fr, w, axis=-1)) ** 2).sum(axis=0) * (noise_scale * 1.0)
+    coarse = uniform_filter1d(coarse.astype(np.float64), size=3, axis=-1, mode="nearest")
     freqs = np.arange(spec.shape[1]) / nfft
     k_lo = int(np.ceil(lo * nfft))
     k_hi = int(np.floor(hi * nfft))
@@ -237,7 +240,11 @@ def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
     freq = (k + delta) / nfft
     n_bins = (k_hi - k_lo) / PAD_FACTOR
     nb = resid.shape[0]
-    snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(noise[rows, k], 1e-300))
+    pos = k / PAD_FACTOR  # the peak bin on the unpadded grid (linear interpolation)
+    i0 = np.minimum(pos.astype(int), coarse.shape[1] - 2)
+    frac = pos - i0
+    noise = coarse[rows, i0] * (1.0 - frac) + coarse[rows, i0 + 1] * frac
+    snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(noise, 1e-300))
     thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=nb)
     return Track(w, float(lo), float(hi), freq, snr, thr, float(n_bins), int(nb))
 

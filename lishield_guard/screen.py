@@ -1,0 +1,80 @@
+"""First stage: clear planes with no column-coherent periodic stripes before any pattern search.
+
+An ordinary photo under steady light has no row signal that every column block shares. The
+short-time tracks (`spectrum.analyse_profiles`) already test each frame's strongest peak
+against the residual between column blocks; under noise a frame passes at threshold
+``peak_threshold(p)`` with probability p. The screen asks for ``min_frames`` such frames in
+one track at a loose p (0.01 by default, against 1e-5 for the tone tracks), so:
+
+- a plane that fails the screen has no frame that the tone tracks could count, and the
+  expensive stages (folding, the period sweep, the exact fit) are skipped for it;
+- the false-pass probability of a plane of pure noise is about
+  1 - (1 - p)^(n_frames) per track for one frame: the screen is meant to be loose, and its
+  miss rate on barcodes is what is measured (`tests/core/test_screen.py`, and
+  ``lishield-guard bench`` reports the fraction of clean photos it clears).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lishield_guard.spectrum import PlaneAnalysis, peak_threshold
+
+__all__ = ["ScreenResult", "screen_plane"]
+
+
+@dataclass(frozen=True)
+class ScreenResult:
+    """The first stage's decision on one plane of one axis.
+
+    Attributes
+    ----------
+    passed : bool
+        True when the plane goes on to the pattern search.
+    frames : int
+        Most frames above the screen threshold in any one track.
+    window_rows : int
+        Window length of that track (0 when there are no tracks).
+    false_prob : float
+        Per-frame false-pass probability the threshold was set for.
+    """
+
+    passed: bool
+    frames: int
+    window_rows: int
+    false_prob: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready fields."""
+        return {"passed": self.passed, "frames": self.frames, "window_rows": self.window_rows,
+                "false_prob": self.false_prob}
+
+
+def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frames: int
+                 ) -> ScreenResult:
+    """Whether one plane's tracks hold ``min_frames`` frames significant at ``false_prob``.
+
+    Parameters
+    ----------
+    analysis : PlaneAnalysis
+        Tracks of one plane along one axis.
+    false_prob : float or None
+        Per-frame false-pass probability in (0, 1); None passes every plane (screen off).
+    min_frames : int
+        Frames (>= 1) one track must hold above the threshold.
+
+    Returns
+    -------
+    ScreenResult
+    """
+    if false_prob is None:
+        return ScreenResult(True, -1, 0, 0.0)
+    best, best_w = 0, 0
+    for track in analysis.tracks:
+        thr = peak_threshold(false_prob, n_bins=track.n_bins, n_blocks=track.n_blocks)
+        count = int(np.count_nonzero(track.snr > thr))
+        if count > best:
+            best, best_w = count, track.window_rows
+    return ScreenResult(best >= min_frames, best, best_w, float(false_prob))
