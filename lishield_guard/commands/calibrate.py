@@ -416,7 +416,10 @@ def calibrate_command(
     n_tc = sum(pt == "tune" for _, _, pt in ok_c)
     n_tp = sum(pt == "tune" for _, _, pt in ok_p)
     if not n_tc or n_tc == len(ok_c) or not n_tp or n_tp == len(ok_p):
-        raise _fail("every image of a part failed to decode", ExitCode.ERROR)
+        first = errors[0] if errors else {"path": "-", "error": "-"}
+        raise _fail(f"every image of a part failed ({len(errors)} of "
+                    f"{len(res_clean) + len(res_pos)} images; first: {first['path']}: "
+                    f"{first['error']})", ExitCode.ERROR)
 
     # --- verdicts of every setting (columns: tuning images first, so tuning slices are views)
     blocks = []  # per profile: settings, clean_prot, pos_prot, clean_hits, clean_cands, time
