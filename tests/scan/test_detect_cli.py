@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
-from conftest import write_images
+from scan_helpers import write_images
 
 import lishield_guard.detect  # noqa: F401 - the module, shadowed by the function of that name
 from lishield_guard.verdict import Verdict

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import jpeg_bytes, read_jsonl, write_images
+from scan_helpers import jpeg_bytes, read_jsonl, write_images
 
 import lishield_guard
 from lishield_guard.commands import ExitCode

@@ -7,7 +7,7 @@ import tarfile
 import zipfile
 from pathlib import Path
 
-from conftest import jpeg_bytes, read_jsonl, write_images
+from scan_helpers import jpeg_bytes, read_jsonl, write_images
 
 from lishield_guard.scan import iter_items, unsafe_member_reason
 

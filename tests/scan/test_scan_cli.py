@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import read_jsonl, write_images
+from scan_helpers import read_jsonl, write_images
 
 from lishield_guard.scan import RECORD_FIELDS, read_done_keys
 

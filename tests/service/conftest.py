@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,6 +11,13 @@ import numpy as np
 import pytest
 from PIL import Image
 from svc_helpers import LiveServer, live_server, make_settings
+
+# tests/conftest.py puts tests/ on sys.path, where tests/synth (no __init__.py) would be
+# imported as a namespace package named `synth`; with the repository root on the path the
+# real package wins (a regular package beats namespace portions), so demo_pair uses it.
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.append(str(ROOT))
 
 
 @pytest.fixture(scope="session")
