@@ -33,7 +33,8 @@ class LiveServer:
     settings: ServiceSettings
 
     def client(self, **kwargs) -> httpx.Client:
-        return httpx.Client(base_url=self.url, timeout=30.0, **kwargs)
+        # generous: the suite shares two cores with other work, and 16 detections queue
+        return httpx.Client(base_url=self.url, timeout=kwargs.pop("timeout", 120.0), **kwargs)
 
 
 @contextlib.contextmanager
@@ -65,7 +66,7 @@ def make_settings(**overrides) -> ServiceSettings:
     """Test settings, independent of the caller's LISHIELD_* environment."""
     base = {"config_path": None, "api_token": None, "protect_metrics": False,
             "max_upload_bytes": TEST_MAX_UPLOAD_BYTES, "max_pixels": TEST_MAX_PIXELS,
-            "max_concurrency": 4, "max_queue": 32, "detect_timeout_s": 30.0,
+            "max_concurrency": 4, "max_queue": 32, "detect_timeout_s": 90.0,
             "log_level": "WARNING"}
     base.update(overrides)
     return ServiceSettings(_env_file=None, **base)
