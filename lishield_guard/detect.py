@@ -242,8 +242,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
         return _periods(planes["L"], screened, det)
 
     @cache
-    def sweeps() -> dict[str, list[dict]]:
-        return _axis_sweeps(planes, screened, det, periods())
+    def sweeps(name: str) -> list[dict]:
+        # per spec, when first needed: a verdict reached on one spec spares the others
+        return _axis_sweeps(planes, [ps for ps in screened if ps[1].name == name], det,
+                            periods())[name]
 
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
@@ -258,7 +260,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 f"{det.screen_min_frames} needed); pattern search skipped"))
             out.append((pid, m))
             continue
-        if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps()[spec.name],
+        if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps(spec.name),
                                                                           det):
             m = replace(m, protected=False, reason=(
                 f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
@@ -273,7 +275,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
             elif info is not None:
                 m = replace(m, fold=info)
         if not m.protected and det.period_sweep:
-            fits = sweeps()[spec.name]
+            fits = sweeps(spec.name)
             passing = [f for f in fits if sweep_passes(f, det)]
             sw = max(passing or fits, key=lambda f: (_grid_passes(f, det),
                                                      f["rho"] - f["rho_lookalike"]),
@@ -303,6 +305,8 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
             elif sw is not None:
                 m = replace(m, sweep=sw)
         out.append((pid, m))
+        if m.protected:  # the verdict is certain: later specs are not searched
+            break
     return out
 
 

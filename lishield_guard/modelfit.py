@@ -55,6 +55,8 @@ HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignore
 MAX_EXPOSURE_SLOTS = 4.0  # t_e x f_B: 1/500 s at f_B = 1600 Hz is 3.2 slots; the attack <= 3
 MIN_BOX = 1e-3  # exposures shorter than this (slots or cycles) are treated as this
 MAX_EVALS = 160  # Nelder-Mead evaluations per start
+FREE_MAX_EVALS = 300  # the same with each tone's phase free (7 parameters for M = 3)
+FREE_SUBPERIODS = 3  # continuous variants also start at 1/2 .. 1/this of the best period
 SCAN_CYCLE_STEP = 1.015  # c_1 scanned on a geometric grid of this ratio over its whole range
 SCAN_EXPOSURE_STEP_SLOTS = 0.1  # exposures scanned from 0 to M slots (e and e + M fit alike)
 SCAN_MIN_PHASES = 256  # phases per pattern period scanned (more when the template needs them)
@@ -275,11 +277,12 @@ def _corr(t: np.ndarray, y: np.ndarray, yy: float) -> float:
     return float(t @ y) / math.sqrt(tt * yy)
 
 
-def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray) -> tuple[float, np.ndarray]:
+def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray, *, max_evals: int = 0
+                 ) -> tuple[float, np.ndarray]:
     simplex = np.vstack([x0] + [x0 + np.diag(steps)[k] for k in range(x0.size)])
     res = minimize(fun, x0, method="Nelder-Mead",
                    options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5,
-                            "maxfev": MAX_EVALS})
+                            "maxfev": max_evals or MAX_EVALS})
     return float(res.fun), np.asarray(res.x)
 
 
@@ -297,12 +300,40 @@ class _Objective:
 
     def rows(self, th) -> np.ndarray:
         """Linear-light rows (before high-pass) of the template at parameters ``th``."""
+        if len(th) > 4:
+            return self._free_rows(th)
         p, c1, phi, e = th
         return render_rows(*self.knots(float(c1)), self.m * self.index / p + phi, e)
 
+    def _free_rows(self, th) -> np.ndarray:
+        """Rows of a free-running emitter: parameters (p, c_1, phi, e, theta_1..theta_M), tone
+        n ON while frac(c_1 r_n u + theta_n) < duty at u slots (never restarted, so the
+        pattern need not repeat)."""
+        p, c1, phi, e = (float(v) for v in th[:4])
+        e = max(e, MIN_BOX)
+        u = self.m * self.index / p + phi
+        slots = np.arange(math.floor(u[0]), math.ceil(u[-1] + e), dtype=np.float64)
+        n = slots.astype(np.int64) % self.m
+        c = c1 * self.knots.rel[n]
+        theta = np.asarray(th[4:], dtype=np.float64)[n]
+        width = int(math.ceil(c.max())) + 3  # ON intervals a slot can hold, with margins
+        jj = np.floor(c * slots + theta)[:, None] - 1 + np.arange(width)[None, :]
+        lo, hi = slots[:, None], slots[:, None] + 1.0
+        a = np.clip((jj - theta[:, None]) / c[:, None], lo, hi)
+        b = np.clip((jj + self.knots.duty - theta[:, None]) / c[:, None], lo, hi)
+        b = np.maximum(a, b)
+        cum = np.cumsum((b - a).ravel())
+        ku = np.empty(2 * cum.size + 1)
+        ko = np.empty_like(ku)
+        ku[0], ko[0] = slots[0], 0.0
+        ku[1::2], ku[2::2] = a.ravel(), b.ravel()
+        ko[2::2] = cum
+        ko[1::2] = cum - (b - a).ravel()
+        return (np.interp(u + e, ku, ko) - np.interp(u, ku, ko)) / e
+
     def allowed(self, th) -> bool:
         """Whether ``th`` lies within the period, c_1, exposure and scale bounds."""
-        p, c1, _, e = th
+        p, c1, _, e = th[:4]
         return bool(self.p_range[0] <= p <= self.p_range[1]
                     and self.c_range[0] <= c1 <= self.c_range[1]
                     and 0.0 <= e <= MAX_EXPOSURE_SLOTS
@@ -361,6 +392,13 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     knots = _KnotMaker(spec, channel)
     model = _Objective(knots, n, (p_lo, p_hi), (c_lo, c_hi), scale_range_cpr_per_hz,
                        spec.f1_hz)
+    if phase_mode(spec) == "continuous" and len(starts):
+        # tones that run on repeat only after several patterns (c_n M / j whole for all n):
+        # the autocorrelation and the grid then favour a multiple of the pattern period
+        top = max(starts, key=lambda st: st[0])
+        starts = list(starts) + [(top[0], top[1] / j, top[2], top[3], top[4])
+                                 for j in range(2, FREE_SUBPERIODS + 1)
+                                 if top[1] / j >= max(p_lo, 8.0)]
     for _, p0, c0, phi0, e0 in starts:
         hp = _highpass(n, p0 / (2 * math.pi * HIGHPASS_CYCLES))
         p0 = min(max(p0, p_lo), p_hi)
@@ -372,17 +410,27 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
         scanned = np.array([p0, *_scan_start(knots, y, m, p0, c_scan,
                                              p0 / (2 * math.pi * HIGHPASS_CYCLES))])
         loss = model.loss(hp, y)
-        x0 = min((grid_start, scanned), key=loss)
-        val, th = _nelder_mead(loss, x0, np.array([0.01 * p0, 0.05, 0.1, 0.05]))
-        if best is None or -val > best[0]:
-            best = (-val, th, hp, y)
+        free = phase_mode(spec) == "continuous"
+        # a timer that runs on need not repeat with the pattern, so the periodic scan may
+        # rank the wrong start first: a continuous variant refines both
+        for x0 in (grid_start, scanned) if free else (min((grid_start, scanned), key=loss),):
+            val, th = _nelder_mead(loss, x0, np.array([0.01 * p0, 0.05, 0.1, 0.05]))
+            if free:  # free each tone's phase (theta = 0 reproduces the first period)
+                val_f, th_f = _nelder_mead(
+                    loss, np.concatenate([th, np.zeros(m)]),
+                    np.array([0.005 * th[0], 0.02, 0.05, 0.05] + [0.1] * m),
+                    max_evals=FREE_MAX_EVALS)
+                if val_f < val:
+                    val, th = val_f, th_f
+            if best is None or -val > best[0]:
+                best = (-val, th, hp, y)
     rho, th, hp, y = best
     if not rho > 0:
         return None
     blocks_hp = hp(blocks_lin)
     if MATCHED_REFIT:
         rho, th, y = _matched_refit(blocks_lin, blocks_hp, hp, model, rho, th, y)
-    p, c1, phi, e = th
+    p, c1, phi, e = th[:4]
     tr = hp(model.rows(th))
     rho = float(min(rho, 1.0))
     alt = lookalike_rho(y, hp) if rho >= FIT_RHO_FLOOR else None
@@ -422,8 +470,8 @@ def _matched_refit(blocks_lin: np.ndarray, blocks_hp: np.ndarray, hp, model: _Ob
     if not (math.isfinite(float(w.sum())) and w.sum() > 0):
         return rho, th, y
     y2 = hp((w / w.sum()) @ blocks_lin)
-    val, th2 = _nelder_mead(model.loss(hp, y2), np.asarray(th, dtype=np.float64),
-                            np.array([0.002 * th[0], 0.01, 0.02, 0.02]))
+    steps = np.array([0.002 * th[0], 0.01, 0.02, 0.02] + [0.02] * (len(th) - 4))
+    val, th2 = _nelder_mead(model.loss(hp, y2), np.asarray(th, dtype=np.float64), steps)
     if -val > rho:
         return -val, th2, y2
     return rho, th, y

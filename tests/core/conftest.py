@@ -23,7 +23,7 @@ def make_led_image(rng):
     def make(spec: BarcodeSpec | None, *, scene: np.ndarray | None = None, n_rows: int = 1080,
              n_cols: int = 1440, row_rate_hz: float = 30_000.0, exposure_s: float = 1 / 4000,
              switching_hz: float | None = None, ambient: float = 1.0, jpeg: int | None = 90,
-             flicker: np.ndarray | None = None):
+             flicker: np.ndarray | None = None, phase: str = "restart"):
         if scene is None:
             from skimage import data
 
@@ -34,7 +34,7 @@ def make_led_image(rng):
         else:
             w = row_waveform(spec, row_time_s=1 / row_rate_hz, n_rows=n_rows,
                              exposure_s=exposure_s, switching_hz=switching_hz,
-                             t0_s=float(rng.random() * 0.01))
+                             t0_s=float(rng.random() * 0.01), phase=phase)
             led = (np.repeat(w["W"][:, None], 3, 1) if "W" in w
                    else np.stack([w["R"], w["G"], w["B"]], 1))
         img = lin * (ambient * 0.5 + led)[:, None, :].astype(np.float32)

@@ -1,0 +1,58 @@
+"""First stage: ordinary photos are cleared before the pattern search; barcodes never are."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from skimage import data
+
+from lishield_guard import PRESETS, default_config, detect
+from lishield_guard.screen import screen_plane
+from lishield_guard.spectrum import PlaneAnalysis, Track
+
+FIRST_STAGE = "first stage"
+
+
+@pytest.mark.parametrize("photo", ["astronaut", "chelsea", "coffee", "rocket"])
+def test_steady_light_photo_is_cleared_by_the_first_stage(make_led_image, photo):
+    scene = cv2.resize(getattr(data, photo)(), (1440, 1080))
+    v = detect(make_led_image(None, scene=scene))
+    assert not v.protected
+    assert v.evidence["reason"].startswith(FIRST_STAGE), v.evidence["reason"]
+    for cand in v.evidence["candidates"]:
+        assert cand["reason"].startswith(FIRST_STAGE)
+
+
+def test_screen_counts_frames_above_its_own_threshold():
+    snr = np.array([0.0, 50.0, 60.0, 1.0])
+    track = Track(64, 0.01, 0.4, np.full(4, 0.1), snr, 1e9, n_bins=20.0, n_blocks=8)
+    pa = PlaneAnalysis(512, 8, (track,), ())
+    # threshold at p = 0.01 over 20 bins and 7 degrees of freedom pairs: 7 ((5e-4)^(-1/7) - 1)
+    thr = 7 * ((0.01 / 20) ** (-1 / 7) - 1)
+    assert 1.0 < thr < 50.0
+    r = screen_plane(pa, false_prob=0.01, min_frames=2)
+    assert (r.passed, r.frames, r.window_rows) == (True, 2, 64)
+    assert not screen_plane(pa, false_prob=0.01, min_frames=3).passed
+    assert screen_plane(pa, false_prob=None, min_frames=99).passed  # screen off
+
+
+def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
+    """Barcodes of random presets, rates, exposures and ambient: each one the full cascade
+    flags (screen off) is flagged with the screen on."""
+    base = default_config()
+    full = base.detector.replace(screen_false_prob=None)
+    flagged = 0
+    for _ in range(6):
+        name = str(rng.choice(["table1-seq1", "table1-seq2", "table1-seq3", "table2-rgb"]))
+        spec = PRESETS[name]
+        img = make_led_image(spec, switching_hz=float(rng.uniform(200.0, spec.f1_hz)),
+                             exposure_s=float(rng.choice([1 / 8000, 1 / 2000, 1 / 1000])),
+                             ambient=float(rng.choice([0.5, 2.0, 4.0])),
+                             row_rate_hz=float(rng.uniform(30e3, 120e3)))
+        v_full = detect(img, full)
+        if v_full.protected:
+            flagged += 1
+            v = detect(img, base)
+            assert v.protected, v.evidence["reason"]
+    assert flagged >= 3
