@@ -93,6 +93,7 @@ from lishield_guard.detect import (
     tone_rule,
 )
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
+from lishield_guard.screen import screen_plane
 
 __all__ = [
     "Claim",
@@ -324,6 +325,34 @@ def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
                        max_row_rate_hz=det.max_row_rate_hz / row_scale)
 
 
+def screened_candidates(evidence, config: AppConfig) -> np.ndarray:
+    """Per `candidate_table` column (axis, spec): does the first stage let it be searched?
+
+    As `detect.decide`: a spec goes on when any plane carrying its channels passes
+    `screen.screen_plane` at ``screen_false_prob`` / ``screen_min_frames`` (not swept); a spec
+    that fails it is never protected, by tone tracks, folding or the period sweep.
+
+    Returns
+    -------
+    ndarray of bool, shape (2 * n_specs,)
+    """
+    det = config.detector
+    specs = _specs(config)
+    out = np.zeros(len(AXES) * len(specs), dtype=bool)
+    for ai, axis in enumerate(AXES):
+        planes = evidence.axes.get(axis)
+        if not planes:
+            continue
+        passed = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
+                                       min_frames=det.screen_min_frames).passed
+                  for pa in planes.values()}
+        for si, spec in enumerate(specs):
+            chans = spec_planes(spec, planes)
+            out[ai * len(specs) + si] = chans is not None and any(
+                passed[id(pa)] for pa in chans.values())
+    return out
+
+
 def _max_sig_frames(planes: dict) -> int:
     return max((int(t.significant.sum()) for pa in planes.values() for t in pa.tracks),
                default=0)
@@ -355,9 +384,11 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
     Mirrors `lishield_guard.detect.decide`: a candidate is protected when n_matched >= need,
     purity >= min_purity, switches >= 1 and, for RGB specs, >= 2 channels are hit.
     A plane whose tracks hold fewer than 2 significant frames cannot hit any tone
-    (`barcode.MIN_FRAMES`), so its candidates are recorded as 0 without running the matcher.
+    (`barcode.MIN_FRAMES`), and a candidate the first stage clears (`screened_candidates`) is
+    never protected, so both are recorded as 0 without running the matcher.
     """
     specs = _specs(config)
+    screened = screened_candidates(evidence, config)
     combos = grid.match_combos()
     table = np.zeros((len(combos), len(AXES) * len(specs), 6), dtype=np.float32)
     match_ms = np.zeros(len(combos))
@@ -381,7 +412,7 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
                     continue
                 row = table[ci, ai * len(specs) + si]
                 row[IS_RGB], row[VALID] = float(spec.is_rgb), 1.0
-                if quiet:
+                if quiet or not screened[ai * len(specs) + si]:
                     continue
                 m = match_spec(spec, chans, det)
                 row[N_MATCHED], row[PURITY], row[SWITCHES] = m.n_matched, m.purity, m.switches
@@ -422,8 +453,12 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     decoded = decode(source, limits=config.limits, fast=det.fast_decode,
                      max_rows=det.max_decode_rows)
     evidence = collect_evidence(decoded, config)
-    folds = fold_fits(evidence, config)
-    sweeps = sweep_fits(evidence, config) if det.period_sweep else []
+    # fits of specs the first stage clears never decide (detect.decide skips them)
+    screened = screened_candidates(evidence, config)
+    folds = [f for f in fold_fits(evidence, config)
+             if screened[_candidate_index(f, config)]]
+    sweeps = [f for f in (sweep_fits(evidence, config) if det.period_sweep else [])
+              if screened[_candidate_index(f, config)]]
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
            "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
                              dtype=float).reshape(-1, 3),

@@ -49,7 +49,7 @@ def _hash(*parts) -> str:
 
 # --- worker side (module-level for pickling)
 _W: dict = {}
-EVIDENCE_PREFIX = "ev8-"  # bump when image_record's layout changes (code edits key the cache)
+EVIDENCE_PREFIX = "ev9-"  # bump when image_record's layout changes (code edits key the cache)
 
 
 def _code_key() -> str:
@@ -72,16 +72,20 @@ def _init_worker(cfg, grid, paper_grid, cache_dir: str | None) -> None:
 
 
 def _cached(key: str, compute):
+    """``compute()``'s value, read from or written to the cache; None is never stored (the
+    null model looks evidence up with a compute of None: a miss there must stay a miss)."""
     cache = _W["cache"]
     path = os.path.join(cache, key + ".pkl") if cache else None
     if path and os.path.exists(path):
         try:
             with open(path, "rb") as fh:
-                return pickle.load(fh), True
+                value = pickle.load(fh)
+            if value is not None:
+                return value, True
         except Exception:  # noqa: BLE001 - a corrupt cache entry is recomputed
             pass
     value = compute()
-    if path:
+    if path and value is not None:
         tmp = f"{path}.{os.getpid()}.tmp"
         with open(tmp, "wb") as fh:
             pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)

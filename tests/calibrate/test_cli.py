@@ -16,6 +16,9 @@ from lishield_guard.config import load_config
 EXE = str(Path(sys.executable).with_name("lishield-guard"))
 
 
+pytestmark = pytest.mark.timeout(900)  # a calibrate run is a few minutes on a loaded machine
+
+
 @pytest.fixture(scope="module")
 def calibrated(tiny_sets):
     """Tuned on the 3 synthetic look-alikes, certified on the 3 noise JPEGs (--certify)."""
