@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -14,6 +15,7 @@ import typer
 from lishield_guard.commands import ExitCode
 from lishield_guard.commands.spec import load_spec_arg
 from lishield_guard.errors import LishieldError
+from lishield_guard.spec import SpecWarning
 
 __all__ = ["read_seed", "register"]
 
@@ -91,6 +93,13 @@ def _print_report(rep: dict, out: Path, fmt: str, n_bytes: int) -> None:
                    f"({w['numerator']} / {w['denominator']})")
 
 
+class AllowRule(StrEnum):
+    """Flicker-free rules a spec may break on request (`lishield_guard.spec.check_spec`)."""
+
+    flicker = "flicker"
+    switching = "switching"
+
+
 def firmware_cmd(
     spec: Annotated[str, typer.Argument(metavar="PRESET|SPEC.toml",
                                         help="Preset name or TOML spec file.")],
@@ -115,6 +124,10 @@ def firmware_cmd(
                       ] = "lsp_seq",
     report_json: Annotated[bool, typer.Option(
         "--json", help="Print the achieved-frequency report as JSON.")] = False,
+    allow: Annotated[list[AllowRule] | None, typer.Option(
+        "--allow", help="Play a spec that breaks this flicker-free rule, with a warning "
+                        "(e.g. the paper's 200 Hz switching: --allow flicker). Repeatable.")
+    ] = None,
 ) -> None:
     """Compile a barcode into a tick-timed LED sequence and write it as C, JSON or binary.
 
@@ -125,6 +138,7 @@ def firmware_cmd(
     Examples:
       lishield-guard firmware table1-seq1 --format c -o lishield_seq.h
       lishield-guard firmware venue.toml -f bin -o seq.bin --seed-env SECRET
+      lishield-guard firmware paper200.toml --allow flicker -f json -o seq.json
     """
     from firmware.emit import to_binary, to_c_header, to_json  # lazy: core never imports firmware
     from firmware.sequence import achieved_report, compile_spec
@@ -132,8 +146,14 @@ def firmware_cmd(
     try:
         barcode = load_spec_arg(spec)
         seed = read_seed(seed_env=seed_env, seed_file=seed_file)
-        seq = compile_spec(barcode, clock_hz=clock_hz, seed=seed, n_patterns=n_patterns,
-                           max_ratio_error=max_ratio_error)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", SpecWarning)
+            seq = compile_spec(barcode, clock_hz=clock_hz, seed=seed, n_patterns=n_patterns,
+                               max_ratio_error=max_ratio_error,
+                               allow=tuple(r.value for r in allow or ()))
+        for w in caught:
+            if issubclass(w.category, SpecWarning):
+                typer.echo(f"warning: {w.message}", err=True)
         del seed
         if fmt is Format.bin:
             data = to_binary(seq)

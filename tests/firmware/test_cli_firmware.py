@@ -99,3 +99,16 @@ def test_core_does_not_import_firmware_at_import_time():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "False"
+
+
+def test_paper_200_hz_spec_needs_allow_flicker(tmp_path):
+    spec = tmp_path / "paper200.toml"
+    spec.write_text('name = "paper200"\nswitching_hz = 200.0\n[channels]\nW = [400.0, 600.0, 800.0]\n')
+    out = tmp_path / "seq.json"
+    res = runner.invoke(app, ["firmware", str(spec), "-f", "json", "-o", str(out)])
+    assert res.exit_code == 2 and "[flicker]" in res.output and not out.exists()
+    res = runner.invoke(app, ["firmware", str(spec), "-f", "json", "-o", str(out),
+                              "--allow", "flicker"])
+    assert res.exit_code == 0, res.output
+    assert "warning:" in res.output and "(allowed)" in res.output
+    assert read_json(out.read_text()).period_ticks == 15_000  # 3 slots of 5 ms at 1 MHz
