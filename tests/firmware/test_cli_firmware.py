@@ -103,7 +103,8 @@ def test_core_does_not_import_firmware_at_import_time():
 
 def test_paper_200_hz_spec_needs_allow_flicker(tmp_path):
     spec = tmp_path / "paper200.toml"
-    spec.write_text('name = "paper200"\nswitching_hz = 200.0\n[channels]\nW = [400.0, 600.0, 800.0]\n')
+    spec.write_text('name = "paper200"\nswitching_hz = 200.0\n'
+                    '[channels]\nW = [400.0, 600.0, 800.0]\n')
     out = tmp_path / "seq.json"
     res = runner.invoke(app, ["firmware", str(spec), "-f", "json", "-o", str(out)])
     assert res.exit_code == 2 and "[flicker]" in res.output and not out.exists()
