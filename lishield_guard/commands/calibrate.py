@@ -156,7 +156,7 @@ def _run_pool(paths: list, fn, init_args, jobs: int, desc: str, progress: bool) 
 
 QUICK_TARGET_FAR = 0.25  # shown by >= 11 certification images without a false alarm
 QUICK_SIZE_RC = (480, 640)  # synthetic sensor (n_rows, n_cols)
-# about 5, 4 and 3 CPU-seconds of evidence per image: about 2 minutes on 2 idle cores
+# 300-600 CPU-seconds of evidence in all (measured 2026-11-24): 2.5-5 minutes on 2 idle cores
 QUICK_COUNTS = {"photos": 18, "lookalikes": 12, "positives": 18}
 QUICK_SEED = 24
 QUICK_VERSION = 1  # bump when the built-in sets change
