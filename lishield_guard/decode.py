@@ -401,8 +401,9 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast
     pixels, is_color = _decode_pixels(data, want_rgb=want_rgb, fast=fast, min_rows=min_rows,
                                       limits=limits)
     row_scale = n_rows / pixels.shape[0]
-    scale = round(row_scale)
-    expected = (-(-n_rows // scale), -(-n_cols // scale)) if scale in JPEG_SCALES else None
+    # libjpeg-turbo scales by M/8 (M = 1..8): ceil(size * M / 8) rows and columns
+    eighths = max(1, min(8, round(8 * pixels.shape[0] / n_rows)))
+    expected = (-(-n_rows * eighths // 8), -(-n_cols * eighths // 8))
     if pixels.shape[:2] != (n_rows, n_cols) and (not min_rows or pixels.shape[:2] != expected):
         raise CorruptImageError(f"decoded size {pixels.shape[:2]} differs from the header's "
                                 f"{(n_rows, n_cols)}")
