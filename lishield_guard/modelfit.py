@@ -577,6 +577,24 @@ def _best_phase(cross_k: np.ndarray, power_k: np.ndarray, n_rows: int, yy: float
     return float(rho[i, j]), int(i), j / n_phases
 
 
+def square_candidates(y: np.ndarray) -> list[float]:
+    """Fundamentals (cycles per row) a steady square wave behind the rows ``y`` may have: the
+    SQUARE_PEAKS strongest spectral lines and their halves and thirds."""
+    n = y.size
+    nfft = 8 * n
+    power = np.abs(np.fft.rfft(y * np.hanning(n), nfft)) ** 2
+    freqs = np.arange(power.size) / nfft
+    power[(freqs < 1.0 / n) | (freqs > 0.45)] = 0.0
+    cands: list[float] = []
+    for _ in range(SQUARE_PEAKS):
+        k = int(np.argmax(power))
+        if not power[k] > 0:
+            break
+        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
+        power[max(0, k - 8): k + 9] = 0.0
+    return cands
+
+
 def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     """Best correlation of a stationary square wave (any frequency, duty, phase, exposure)
     with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
@@ -597,17 +615,7 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     yy = float(y @ y)
     if n < 8 or not yy > 0:
         return 0.0
-    nfft = 8 * n
-    power = np.abs(np.fft.rfft(y * np.hanning(n), nfft)) ** 2
-    freqs = np.arange(power.size) / nfft
-    power[(freqs < 1.0 / n) | (freqs > 0.45)] = 0.0
-    cands: list[float] = []
-    for _ in range(SQUARE_PEAKS):
-        k = int(np.argmax(power))
-        if not power[k] > 0:
-            break
-        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
-        power[max(0, k - 8): k + 9] = 0.0
+    cands = square_candidates(y)
     if not cands:
         return 0.0
     rows = np.arange(n, dtype=np.float64)

@@ -190,17 +190,7 @@ def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
     nelder_mead = getattr(modelfit, "_nelder_mead", None)
     if square_start is None or nelder_mead is None:
         return None
-    nfft = 8 * n
-    power = np.abs(np.fft.rfft(y * np.hanning(n), nfft)) ** 2
-    freqs = np.arange(power.size) / nfft
-    power[(freqs < 1.0 / n) | (freqs > 0.45)] = 0.0
-    cands: list[float] = []
-    for _ in range(3):
-        k = int(np.argmax(power))
-        if not power[k] > 0:
-            break
-        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
-        power[max(0, k - 8): k + 9] = 0.0
+    cands = modelfit.square_candidates(y)
     if not cands:
         return None
     try:
