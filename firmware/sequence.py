@@ -393,7 +393,7 @@ def compile_spec(
                    durations_ticks=durations, levels=levels, max_level=k_levels,
                    n_patterns=n_patterns)
     report = achieved_report(seq)
-    lost = [t for t in report["tones"] if not math.isfinite(t["rel_error"])]
+    lost = [t for t in report["tones"] if math.isinf(t["rel_error"])]
     if lost:
         raise FirmwareError(f"clock_hz={clock_hz} cannot play spec {spec.name!r}: tone "
                             f"{lost[0]['channel']}:{lost[0]['spec_hz']:g} Hz loses its edges "
@@ -490,14 +490,16 @@ def _slot_bounds_ticks(spec: BarcodeSpec, clock_hz: int, n_slots: int) -> list[i
     return [_round_ticks(Fraction(g) / f_b * clock_hz) for g in range(n_slots + 1)]
 
 
-def _edge_span_hz(spec: BarcodeSpec, tone_hz: float, g: int, s0: int, s1: int,
-                  rising: np.ndarray, falling: np.ndarray, clock_hz: int) -> float | None:
-    """Achieved frequency of one slot from its first and last genuine edges.
+def _slot_edges(spec: BarcodeSpec, tone_hz: float, g: int, s0: int, s1: int,
+                rising: np.ndarray, falling: np.ndarray, clock_hz: int
+                ) -> list[tuple[Fraction, int]] | None:
+    """The genuine edges of one slot as (ideal phase in cycles, played tick), sorted.
 
     The ideal rising (phase 0) and falling (phase duty) edges of the tone inside the closed
     slot are listed with their phase in cycles; those strictly inside must match the played
-    edges one to one (else NaN: an edge was lost to tick rounding), those on a slot bound are
-    timed by the bound's tick. Returns None when the slot holds fewer than two such edges.
+    edges one to one (else None: an edge was lost to tick rounding), those on a slot bound are
+    timed by the bound's tick. With continuous phase the phases count from t = 0, so the edges
+    of different slots of one tone share one time line.
     """
     f_b = Fraction(spec.f_b_hz)
     duty = Fraction(spec.duty)
@@ -518,11 +520,16 @@ def _edge_span_hz(spec: BarcodeSpec, tone_hz: float, g: int, s0: int, s1: int,
     played = sorted([(int(t), 1) for t in rising[(rising > s0) & (rising < s1)]]
                     + [(int(t), 0) for t in falling[(falling > s0) & (falling < s1)]])
     if [k for _, k in played] != [k for _, k in inner_ideal]:
-        return float("nan")
+        return None
     pts = [(p, min(max(t, s0), s1)) for (p, _), t in zip(ideal, ticks, strict=True)
            if not s0 < t < s1]
     pts += [(p, t) for (p, _), (t, _) in zip(inner_ideal, played, strict=True)]
-    pts.sort()
+    return sorted(pts)
+
+
+def _span_hz(pts: list[tuple[Fraction, int]], clock_hz: int) -> float | None:
+    """(phase span in cycles) * clock_hz / (tick span) between the first and last edge; None
+    with fewer than two edges at distinct ticks."""
     if len(pts) < 2 or pts[-1][1] == pts[0][1]:
         return None
     return float(pts[-1][0] - pts[0][0]) * clock_hz / (pts[-1][1] - pts[0][1])
@@ -541,10 +548,12 @@ def achieved_report(seq: Sequence) -> dict:
     report : dict
         JSON-ready. ``tones``: one entry per channel and tone with ``channel``, ``spec_hz``,
         ``achieved_hz`` (mean over its slots), ``min_hz``, ``max_hz`` and ``rel_error``
-        (worst over its slots). ``slot_rate_hz``, ``pattern_period_s``, ``period_s``,
+        (worst over its slots); ``measured`` is False, with NaN values, for a tone none of
+        whose slots holds two edges (below about one cycle per slot). ``slot_rate_hz``, ``pattern_period_s``, ``period_s``,
         ``period_ticks``, ``n_patterns``, ``n_steps``, ``clock_hz``; ``ratios``: per ratio
-        pair the spec and worst achieved value; ``worst_ratio_error`` (relative, unitless,
-        ``inf`` when a tone lost its edges) and ``worst_ratio``.
+        pair the spec and worst achieved value (NaN when a tone is unmeasured);
+        ``worst_ratio_error`` (relative, unitless, over the measured pairs, ``inf`` when a tone
+        lost its edges) and ``worst_ratio``.
 
     Notes
     -----
@@ -555,7 +564,8 @@ def achieved_report(seq: Sequence) -> dict:
     n * clock_hz / span_ticks. Otherwise (continuous phase, or a slot shorter than a cycle)
     the slot's first and last edges, rising or falling, whose ideal phases are known, give
     (phase span in cycles) * clock_hz / span_ticks; slots holding fewer than two edges are
-    skipped.
+    skipped, and a continuous tone none of whose slots holds two edges (fewer than about one
+    cycle per slot) is measured from its first to its last edge in the whole sequence.
     """
     spec = seq.spec
     m = spec.n_tones
@@ -565,6 +575,7 @@ def achieved_report(seq: Sequence) -> dict:
     order = spec.slot_order()
     f_b = spec.f_b_hz
     per_tone: dict[tuple[int, int], list[float]] = {}
+    pooled: dict[tuple[int, int], list[tuple[Fraction, int]]] = {}
     for c in range(len(seq.channels)):
         col = seq.levels[:, c].astype(np.int64)
         prev = np.roll(col, 1)
@@ -584,13 +595,23 @@ def achieved_report(seq: Sequence) -> dict:
                 else:
                     hz = n_full * seq.clock_hz / (edges[n_full] - edges[0])
             else:
-                hz = _edge_span_hz(spec, f, g, s0, s1, rising, falling, seq.clock_hz)
+                pts = _slot_edges(spec, f, g, s0, s1, rising, falling, seq.clock_hz)
+                hz = float("nan") if pts is None else _span_hz(pts, seq.clock_hz)
+                if pts is not None and spec.phase == "continuous":
+                    pooled.setdefault((c, tone), []).extend(pts)
             vals = per_tone.setdefault((c, tone), [])
             if hz is not None:
                 vals.append(hz)
+    for key, pts in pooled.items():
+        # a tone slower than its slots: no slot holds two edges, the whole sequence does
+        if not per_tone[key]:
+            hz = _span_hz(sorted(pts, key=lambda pt: pt[1]), seq.clock_hz)
+            if hz is not None:
+                per_tone[key].append(hz)
 
     tones = []
     achieved: dict[tuple[str, float], tuple[float, float]] = {}
+    unmeasured: set[tuple[str, float]] = set()
     for (c, tone), vals in sorted(per_tone.items()):
         ch = seq.channels[c]
         f = spec.channels[c][1][tone]
@@ -598,10 +619,13 @@ def achieved_report(seq: Sequence) -> dict:
         bad = bool(np.isnan(arr).any())
         lo = float("nan") if bad else float(arr.min())
         hi = float("nan") if bad else float(arr.max())
-        rel = float("inf") if bad else float(np.max(np.abs(arr / f - 1)))
+        # no edge lost but none of its slots (nor the sequence) holds two edges: unmeasured
+        rel = (float("nan") if not vals else float("inf") if bad
+               else float(np.max(np.abs(arr / f - 1))))
         tones.append({"channel": ch, "spec_hz": f, "achieved_hz": float(np.mean(arr)),
-                      "min_hz": lo, "max_hz": hi, "rel_error": rel})
+                      "min_hz": lo, "max_hz": hi, "rel_error": rel, "measured": bool(vals)})
         achieved[(ch, f)] = (lo, hi)
+        unmeasured |= {(ch, f)} if not vals else set()
 
     ratios = []
     worst, worst_entry = 0.0, None
@@ -609,7 +633,9 @@ def achieved_report(seq: Sequence) -> dict:
         for (num, den) in r.pairs:
             n_lo, n_hi = achieved[num]
             d_lo, d_hi = achieved[den]
-            if any(math.isnan(v) for v in (n_lo, n_hi, d_lo, d_hi)):
+            if num in unmeasured or den in unmeasured:
+                err, ach = float("nan"), float("nan")
+            elif any(math.isnan(v) for v in (n_lo, n_hi, d_lo, d_hi)):
                 err, ach = float("inf"), float("nan")
             else:
                 cands = (n_hi / d_lo, n_lo / d_hi)
@@ -620,7 +646,7 @@ def achieved_report(seq: Sequence) -> dict:
                      f"{den[0]}:{den[1]:g} Hz", "spec": r.value, "achieved": ach,
                      "rel_error": err}
             ratios.append(entry)
-            if worst_entry is None or err > worst:
+            if not math.isnan(err) and (worst_entry is None or err > worst):
                 worst, worst_entry = err, entry
     period_ticks = seq.period_ticks
     return {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from fractions import Fraction
 
 import numpy as np
@@ -280,3 +281,19 @@ def test_continuous_sequence_matches_the_ideal_waveform_within_one_tick(
     dist_slot = np.abs(t_s * spec.f_b_hz - np.round(t_s * spec.f_b_hz)) / spec.f_b_hz * clock_hz
     near = np.minimum(np.minimum(dist_on, dist_off), dist_slot) <= 1.0
     assert np.array_equal(got[~near], ideal[~near])
+
+
+def test_a_continuous_tone_slower_than_its_slot_is_measured_across_slots_or_reported_unmeasured():
+    # f_B = 225 Hz > f_1 = 200 Hz: each 200 Hz slot holds under one cycle
+    spec = BarcodeSpec.mono("slow", [200.0, 400.0, 800.0], duty=0.75, switching_hz=225.0,
+                            phase="continuous", order=(1, 2, 0))
+    with pytest.warns(SpecWarning):
+        one = achieved_report(compile_spec(spec, clock_hz=1_000_000, allow=ALLOW))
+    slow = next(t for t in one["tones"] if t["spec_hz"] == 200.0)
+    assert not slow["measured"] and math.isnan(slow["rel_error"])  # one edge in the sequence
+    assert math.isfinite(one["worst_ratio_error"])
+    with pytest.warns(SpecWarning):
+        many = achieved_report(compile_spec(spec, clock_hz=1_000_000, n_patterns=8,
+                                            allow=ALLOW))
+    slow = next(t for t in many["tones"] if t["spec_hz"] == 200.0)
+    assert slow["measured"] and slow["rel_error"] < 1e-3
