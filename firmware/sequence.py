@@ -549,9 +549,10 @@ def achieved_report(seq: Sequence) -> dict:
         JSON-ready. ``tones``: one entry per channel and tone with ``channel``, ``spec_hz``,
         ``achieved_hz`` (mean over its slots), ``min_hz``, ``max_hz`` and ``rel_error``
         (worst over its slots); ``measured`` is False, with NaN values, for a tone none of
-        whose slots holds two edges (below about one cycle per slot). ``slot_rate_hz``, ``pattern_period_s``, ``period_s``,
-        ``period_ticks``, ``n_patterns``, ``n_steps``, ``clock_hz``; ``ratios``: per ratio
-        pair the spec and worst achieved value (NaN when a tone is unmeasured);
+        whose slots holds two edges (below about one cycle per slot). ``slot_rate_hz``,
+        ``pattern_period_s``, ``period_s``, ``period_ticks``, ``n_patterns``, ``n_steps``,
+        ``clock_hz``; ``ratios``: per ratio pair the spec and worst achieved value (NaN when a
+        tone is unmeasured);
         ``worst_ratio_error`` (relative, unitless, over the measured pairs, ``inf`` when a tone
         lost its edges) and ``worst_ratio``.
 

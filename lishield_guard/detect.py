@@ -21,7 +21,7 @@ from lishield_guard.config import (
 from lishield_guard.decode import Decoded, decode
 from lishield_guard.emitter import cycles_range, emitter_variants, variant_label
 from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
-from lishield_guard.modelfit import refine
+from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles, merge_blocks
 from lishield_guard.screen import screen_plane
@@ -231,11 +231,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
     sweep (computed once per axis for all specs, when first needed)."""
     out = []
-    screens = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
-                                    min_frames=det.screen_min_frames)
-               for pa in planes.values()}
-    screened = [(pid, spec) for pid, spec in specs
-                if _screen_passes(spec_planes(spec, planes), screens)]
+    screens, screened = _screen_specs(planes, specs, det)
 
     @cache
     def periods() -> list[float]:
@@ -245,7 +241,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     def sweeps(name: str) -> list[dict]:
         # per spec, when first needed: a verdict reached on one spec spares the others
         return _axis_sweeps(planes, [ps for ps in screened if ps[1].name == name], det,
-                            periods())[name]
+                            periods(), stop=lambda info: sweep_passes(info, det))[name]
 
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
@@ -308,6 +304,18 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
         if m.protected:  # the verdict is certain: later specs are not searched
             break
     return out
+
+
+def _screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
+                  ) -> tuple[dict, list]:
+    """The first stage on one axis: `screen.screen_plane` of every plane (by ``id``) and the
+    (policy id, spec) pairs with a plane that passed, in order. Detection and calibration
+    (`sweep_fits`, `fold_fits`) search the same specs with the same candidate periods."""
+    screens = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
+                                    min_frames=det.screen_min_frames)
+               for pa in planes.values()}
+    return screens, [(pid, spec) for pid, spec in specs
+                     if _screen_passes(spec_planes(spec, planes), screens)]
 
 
 def _screen_passes(chans: dict[str, PlaneAnalysis] | None, screens: dict) -> bool:
@@ -417,12 +425,13 @@ def _colour_blocks(planes: dict[str, PlaneAnalysis]) -> dict[str, np.ndarray] | 
 
 
 def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
-                 periods: list[float] | None = None) -> dict[str, list[dict]]:
+                 periods: list[float] | None = None, stop=None) -> dict[str, list[dict]]:
     """Period-sweep fits of every spec on one axis, one per channel plane (spec name -> fits).
 
     Specs fitted on the same plane share one period grid. Each channel is judged on its own:
     the exposure attack or a long exposure can flatten a colour's tones, and one channel
-    fitted the way the spec says is the evidence.
+    fitted the way the spec says is the evidence. With ``stop`` (a predicate on one entry),
+    the search ends at the first entry it accepts: the verdict no longer depends on the rest.
     """
     by_plane: dict[int, tuple[PlaneAnalysis, list]] = {}
     for _, spec in specs:
@@ -440,11 +449,18 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                            period_range_rows=ranges,
                            n_starts=FIT_STARTS if det.model_fit else 0,
                            start_periods=_related_periods(periods or ()), weighted=True)
+        # one steady look-alike per plane, at its best grid period: rows a steady square wave
+        # already explains are not refined for any target
+        top = max((st for sm in fits if sm is not None for st in sm.starts), default=None)
+        steady = (steady_rho(blocks, top[1])
+                  if det.model_fit and top is not None and top[0] >= FIT_MIN_GRID_RHO else 0.0)
         for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
             if sm is None:
                 continue
             info = {**sm.to_dict(), "channel": c, "emitter": variant_label(spec)}
-            if det.model_fit:
+            if steady >= LOOKALIKE_DOMINANT_RHO:
+                info["steady_rho"] = steady
+            elif det.model_fit:
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
                 mf = refine(blocks, spec, c, starts, period_range_rows=rng,
                             scale_range_cpr_per_hz=scale,
@@ -452,6 +468,8 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 if mf is not None:
                     info["fit"] = mf.to_dict()
             out[spec.name].append(info)
+            if stop is not None and stop(info):
+                return {name: _best_variants(infos) for name, infos in out.items()}
     return {name: _best_variants(infos) for name, infos in out.items()}
 
 
@@ -475,12 +493,16 @@ def _best_variants(infos: list[dict]) -> list[dict]:
 
 
 def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded period-sweep fits of every spec on every axis (for calibration sweeps)."""
+    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
+    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
     det = _scaled(config.detector, evidence.row_scale)
-    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
     for axis_name, planes in evidence.axes.items():
-        periods = _periods(planes["L"], specs, det) if "L" in planes else []
+        if "L" not in planes:
+            continue
+        _, specs = _screen_specs(planes, all_specs, det)
+        periods = _periods(planes["L"], specs, det)
         sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
             for info in sweeps[spec.name]:
@@ -495,13 +517,15 @@ def fold_passes(info: dict, det: DetectorConfig) -> bool:
 
 
 def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded fold fits of every spec on every axis (for calibration sweeps)."""
+    """Unthresholded fold fits of every spec the first stage passes, on every axis (for
+    calibration sweeps; the specs and candidate periods `decide` searches)."""
     det = _scaled(config.detector, evidence.row_scale)
-    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
     for axis_name, planes in evidence.axes.items():
         if "L" not in planes:
             continue
+        _, specs = _screen_specs(planes, all_specs, det)
         periods = _periods(planes["L"], specs, det)
         for pid, spec in specs:
             chans = spec_planes(spec, planes)

@@ -10,6 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lishield_guard import DetectorConfig, detect
+from lishield_guard.config import AppConfig, Policy, load_config
+from lishield_guard.spec import PRESETS
 
 SETTINGS = settings(max_examples=40, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -46,7 +48,14 @@ def test_random_images_and_extreme_aspect_ratios(seed, n_rows, n_cols, profile):
     _check(w)
 
 
-@SETTINGS
+# the stripes pass the first stage, so every call runs the whole pattern search: one mono
+# spec keeps the 4 x 15 searches within a minute (the search itself is the same for any spec)
+_SHIPPED = load_config()
+ONE_SPEC = AppConfig(detector=_SHIPPED.detector, limits=_SHIPPED.limits,
+                     policies=(Policy("no-distribution", (PRESETS["table1-seq1"],)),))
+
+
+@settings(SETTINGS, max_examples=15)
 @given(seed=st.integers(0, 2**32 - 1), amp=st.floats(0.0, 3.0), scale=st.floats(0.01, 100.0))
 def test_bit_depth_dtype_and_brightness_invariance(seed, amp, scale):
     rng = np.random.default_rng(seed)
@@ -59,7 +68,7 @@ def test_bit_depth_dtype_and_brightness_invariance(seed, amp, scale):
     f64 = img8.astype(np.float64) * scale
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        verdicts = [detect(x) for x in (img8, img16, f32, f64)]
+        verdicts = [detect(x, ONE_SPEC) for x in (img8, img16, f32, f64)]
     assert len({v.protected for v in verdicts}) == 1
     for v in verdicts:
         _check(v)
