@@ -1,7 +1,8 @@
 """Upper bound on any row-profile detector's TPR at a false-alarm rate, on a labelled synth set.
 
-A clairvoyant detector knows each barcode capture's true template (pattern, f_B, row rate,
-exposure, phase) and correlates it with the rows the default profile fits (the quiet-weighted
+A clairvoyant detector knows each barcode capture's true template (the light its emitter
+played: f_B, slot order, restart or continuous phase, rise time; row rate, exposure, frame
+start) and correlates it with the rows the default profile fits (the quiet-weighted
 linear column sub-blocks, `modelfit.linear_common`, high-passed as in the exact fit). For its
 false alarms each positive is rendered a second time with the same scene, camera, noise and
 JPEG settings under steady light (its *twin*) and the same template is correlated with the
@@ -38,8 +39,6 @@ from lishield_guard.modelfit import (
     _highpass,
     linear_common,
     linearise,
-    pattern_knots,
-    render_rows,
 )
 from lishield_guard.spec import get_preset
 from lishield_guard.stats import clopper_pearson
@@ -66,6 +65,24 @@ def _rows_variants(blocks_log: np.ndarray, fine_log: np.ndarray, t: np.ndarray, 
     return out
 
 
+def _true_rows(item: dict, n: int) -> dict[str, np.ndarray]:
+    """The light each of the ``n`` analysed rows integrated, per LED channel, in linear light:
+    the item's own emitter (f_B, slot order, phase mode, rise time, as the synth rendered it)
+    through its exposure window, averaged over the sensor rows each analysed row resamples."""
+    from synth.dataset import _make_light
+    from synth.light import row_means
+
+    light = _make_light(item)
+    n_sensor = int(item["sensor_rows"])
+    t = item["frame_start_s"] + np.arange(n_sensor, dtype=np.float64) / item["row_rate_hz"]
+    vals = row_means(light, t, item["exposure_s"])  # (n_sensor, n_channels)
+    edges = np.linspace(0, n_sensor, n + 1)  # stored and decoded rows resample the sensor's
+    cum = np.concatenate([np.zeros((1, vals.shape[1])), np.cumsum(vals, axis=0)])
+    lo, hi = np.floor(edges[:-1]).astype(int), np.ceil(edges[1:]).astype(int)
+    binned = (cum[hi] - cum[lo]) / np.maximum(hi - lo, 1)[:, None]
+    return {ch: binned[:, i] for i, ch in enumerate(light.channels)}
+
+
 def _template_corr(jpeg, item: dict, cfg) -> dict[str, float]:
     """Correlations of the item's true template with ``jpeg``'s rows, per row construction
     (see `VARIANTS`); empty when the image has too few rows to analyse."""
@@ -76,15 +93,9 @@ def _template_corr(jpeg, item: dict, cfg) -> dict[str, float]:
         return {}
     n = pa.blocks.shape[1]
     spec = get_preset(item["preset"])
-    m = spec.n_tones
-    n_stored = round(item["sensor_rows"] / item["downscale"])
-    period = m / item["switching_hz"] * item["row_rate_hz"] / item["downscale"] * n / n_stored
-    c1 = spec.f1_hz / item["switching_hz"]
-    e = item["exposure_s"] * item["switching_hz"]
-    u = m * np.arange(n) / period + (item["frame_start_s"] * item["switching_hz"]) % m
+    period = spec.n_tones / item["switching_hz"] * item["row_rate_hz"] * n / item["sensor_rows"]
     hp = _highpass(n, period / (2 * math.pi * 1.5))
-    chan = {ch: hp(render_rows(*pattern_knots(spec, ch, c1), u, e))
-            for ch in spec.channel_names}
+    chan = {ch: hp(rows) for ch, rows in _true_rows(item, n).items()}
     out = _rows_variants(pa.blocks, pa.fit_blocks, sum(LUMA[c] * t for c, t in chan.items()), hp)
     if spec.is_rgb:  # each channel's template on its own colour plane, the best of the three
         rgb = dec.rgb()
