@@ -66,6 +66,92 @@ def test_pwm_dimming_is_not_a_barcode(make_led_image, pwm_hz):
     assert not v.protected, v.evidence["reason"]
 
 
+# --- Look-alikes that reach the pattern search and are rejected only by a look-alike defence.
+# The PWM cases above stop at "1 tone found, 2 needed" whatever the later stages do; the cases
+# below get past every other term of the fold, grid and exact-fit rules (asserted on the
+# evidence), so removing the look-alike margin, the gain's look-alike term or the per-plane
+# steady-square-wave gate (`modelfit.steady_rho` >= `LOOKALIKE_DOMINANT_RHO`) fails them.
+# 720 x 960 frames and one spec keep each under about 3 s.
+
+LOOKALIKE_ROWS, LOOKALIKE_COLS = 720, 960
+
+
+def _one_spec(name: str):
+    from lishield_guard.config import AppConfig, Policy, load_config
+
+    base = load_config()
+    return AppConfig(detector=base.detector, limits=base.limits,
+                     policies=(Policy("no-distribution", (PRESETS[name],)),))
+
+
+def _flicker(kind: str, freq_hz: float, level: float) -> np.ndarray:
+    """Per-row light of a steady periodic source at 30 k rows/s: PWM (``level`` = duty) or a
+    sinusoid (``level`` = amplitude around 0.5)."""
+    t = np.arange(LOOKALIKE_ROWS) / 30_000.0
+    if kind == "pwm":
+        return 0.25 + 0.5 * (((t * freq_hz) % 1.0) < level)
+    return 0.5 + level * np.sin(2 * np.pi * freq_hz * t)
+
+
+def _rows_candidate(v) -> dict:
+    (rows,) = [c for c in v.evidence["candidates"] if c["axis"] == "rows"]
+    return rows
+
+
+@pytest.mark.parametrize("kind, freq_hz, level", [("pwm", 500.0, 0.5), ("sine", 1000.0, 0.3)])
+def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike_margin(
+        make_led_image, kind, freq_hz, level):
+    """PWM dimming (500 Hz, duty 0.5) and a 1 kHz sinusoid: a steady square wave fits the rows
+    at rho >= `modelfit.LOOKALIKE_DOMINANT_RHO`, so the plane is not refined (the sweep entry
+    carries ``steady_rho`` and no exact fit: catches the gate disabled). The tiled Table 1
+    sequence 3 fits the stripes above ``sweep_min_rho`` with coherent column blocks; only the
+    look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike)."""
+    from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO
+
+    cfg = _one_spec("table1-seq3")
+    det = cfg.detector
+    img = make_led_image(None, flicker=_flicker(kind, freq_hz, level), n_rows=LOOKALIKE_ROWS,
+                         n_cols=LOOKALIKE_COLS)
+    v = detect(img, cfg)
+    assert not v.protected, v.evidence["reason"]
+    sw = _rows_candidate(v)["sweep"]
+    assert sw["steady_rho"] >= LOOKALIKE_DOMINANT_RHO, sw
+    assert "fit" not in sw, "a plane the steady look-alike explains was refined"
+    # every other term of the grid rule passes: only the margin over the look-alike fails
+    assert sw["rho"] >= det.sweep_min_rho and sw["coherence_t"] >= det.sweep_min_coherence, sw
+    assert sw["rho"] - sw["rho_lookalike"] < det.sweep_min_margin, sw
+    assert sw["rho_lookalike"] > sw["rho"], sw
+
+
+def test_sine_flicker_reaches_every_fit_and_only_the_lookalike_rejects_it(make_led_image):
+    """A 500 Hz sinusoid (amplitude 0.3) under the gate: folding, the period sweep and the
+    exact capture model all fit Table 1 sequence 3 well enough to pass on every other term,
+    and in each the steady look-alike fits the rows better still. Catches the fold margin, the
+    grid margin or any gain term of `fit_rule` (or the gain's look-alike term) removed, and
+    the gate lowered so far that this plane goes unrefined."""
+    cfg = _one_spec("table1-seq3")
+    det = cfg.detector
+    img = make_led_image(None, flicker=_flicker("sine", 500.0, 0.3), n_rows=LOOKALIKE_ROWS,
+                         n_cols=LOOKALIKE_COLS)
+    v = detect(img, cfg)
+    assert not v.protected, v.evidence["reason"]
+    rows = _rows_candidate(v)
+    fold, sw = rows["fold"], rows["sweep"]
+    # folding: rho and SNR pass, the margin over the look-alike does not
+    assert fold["rho"] >= det.fold_min_rho and fold["fold_snr"] >= det.fold_min_snr, fold
+    assert fold["rho"] - fold["rho_lookalike"] < det.fold_min_margin, fold
+    # the grid: rho and coherence pass, the margin does not
+    assert "steady_rho" not in sw, sw
+    assert sw["rho"] >= det.sweep_min_rho and sw["coherence_t"] >= det.sweep_min_coherence, sw
+    assert sw["rho"] - sw["rho_lookalike"] < det.sweep_min_margin, sw
+    # the exact fit: rho, coherence and the periods of both the plain and the periodic path
+    # pass; the look-alike fits better, so the gain is negative and fails both
+    fit = sw["fit"]
+    assert fit["rho"] >= max(det.fit_min_rho, det.fit_min_rho_periodic), fit
+    assert fit["coherence_t"] >= det.sweep_min_coherence and fit["n_periods"] >= 2, fit
+    assert fit["rho_lookalike"] > fit["rho"] and fit["gain"] < 0, fit
+
+
 def test_steady_light_photo_is_clean(make_led_image):
     v = detect(make_led_image(None))
     assert not v.protected
