@@ -71,6 +71,65 @@ def test_candidate_table_agrees_with_decide(records):
     assert n_pos > 0  # the easy positives are found by some settings
 
 
+def _literal_sweep_row(row, det) -> bool:
+    """`SWEEP_COLUMNS` row -> protected, the grid and exact-fit rules written out (not the
+    `detect.grid_rule` / `fit_rule` both calibration and detection call)."""
+    rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_periods = (float(x) for x in row)
+    grid = (rho >= det.sweep_min_rho and rho - alt >= det.sweep_min_margin
+            and t >= det.sweep_min_coherence)
+    fit = det.model_fit and f_t >= det.sweep_min_coherence and (
+        (f_rho >= det.fit_min_rho and f_gain >= det.fit_min_gain)
+        or (f_periods >= 2.0 and f_rho >= det.fit_min_rho_periodic
+            and f_gain >= det.fit_min_gain_periodic)
+        or (math.isfinite(leak) and leak <= det.fit_max_leak_rgb
+            and f_rho >= det.fit_min_rho_rgb and f_gain >= det.fit_min_gain_rgb))
+    return grid or fit
+
+
+def _literal_fold_row(row, det) -> bool:
+    rho, alt, snr = (float(x) for x in row)
+    return (rho >= det.fold_min_rho and snr >= det.fold_min_snr
+            and rho - alt >= det.fold_min_margin)
+
+
+# Settings from lax to the shipped ones: at the lax ones real fits pass on rho and fail only
+# on the look-alike term, so the tables below exercise that term.
+_TABLE_SETTINGS = [
+    {},
+    {"sweep_min_rho": 0.6, "sweep_min_margin": 0.0, "sweep_min_coherence": 3.0},
+    {"sweep_min_rho": 0.6, "sweep_min_margin": 0.0, "fit_min_rho": 0.8, "fit_min_gain": 0.5,
+     "fit_min_rho_periodic": 0.8, "fit_min_gain_periodic": 0.5, "fit_min_rho_rgb": 0.8,
+     "fit_min_gain_rgb": 0.5, "fit_max_leak_rgb": 1.0, "sweep_min_coherence": 3.0},
+    {"fold_min_rho": 0.6, "fold_min_snr": 1.0, "fold_min_margin": 0.0},
+]
+
+
+def test_cached_fit_tables_judged_as_the_rules_say(records):
+    """Calibration's table verdicts (`sweep_protected`, `fold_protected`) on the real cached
+    fits of the tiny sets equal the rules written out in this test, at the shipped and at lax
+    settings. `test_candidate_table_agrees_with_decide` cannot see a rule changed in
+    detect.py (both of its sides call it); this test can, e.g. the look-alike margin dropped:
+    at the lax settings some real fits fail on that term alone (asserted)."""
+    cfg, recs = records
+    n_pass = n_lookalike_only = 0
+    for overrides in _TABLE_SETTINGS:
+        det = cfg.detector.replace(**overrides)
+        for r in recs:
+            want = [_literal_sweep_row(row, det) for row in r["sweeps"]]
+            assert bool(cal.sweep_protected([r["sweeps"]], det)[0]) is any(want)
+            folds = [_literal_fold_row(row, det) for row in r["folds"]]
+            assert bool(cal.fold_protected([r["folds"]], det)[0]) is any(folds)
+            n_pass += sum(want) + sum(folds)
+            no_margin = det.replace(sweep_min_margin=-1.0, fold_min_margin=-1.0)  # rho - alt >= -1
+            n_lookalike_only += sum(
+                _literal_sweep_row(row, no_margin) and not _literal_sweep_row(row, det)
+                for row in r["sweeps"]) + sum(
+                _literal_fold_row(row, no_margin) and not _literal_fold_row(row, det)
+                for row in r["folds"])
+    assert n_pass > 0, "no cached fit passes at any setting: the comparison is vacuous"
+    assert n_lookalike_only > 0, "no cached fit fails on the look-alike term alone"
+
+
 def test_paper_peaks_match_run_paper(records, tiny_sets):
     from lishield_guard import detect
 
