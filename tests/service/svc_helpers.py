@@ -72,6 +72,40 @@ def make_settings(**overrides) -> ServiceSettings:
     return ServiceSettings(_env_file=None, **base)
 
 
+def metric_value(text: str, name: str, **labels: str) -> float:
+    """The value of one sample of a Prometheus text exposition (0.0 when the sample is absent:
+    a labelled counter that was never incremented is not exposed)."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    for family in text_string_to_metric_families(text):
+        for sample in family.samples:
+            if sample.name == name and sample.labels == labels:
+                return float(sample.value)
+    return 0.0
+
+
+@contextlib.contextmanager
+def captured_service_log() -> Iterator[list]:
+    """Records of the ``lishield_guard.service`` loggers while the block runs. They do not
+    propagate to the root logger (`service.access_log.configure_logging`), so pytest's caplog
+    never sees them; a handler is attached to the logger itself."""
+    import logging
+
+    records: list[logging.LogRecord] = []
+
+    class _Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    logger = logging.getLogger("lishield_guard.service")
+    handler = _Keep(level=logging.DEBUG)
+    logger.addHandler(handler)
+    try:
+        yield records
+    finally:
+        logger.removeHandler(handler)
+
+
 def png_declaring(n_cols: int, n_rows: int) -> bytes:
     """A PNG whose IHDR declares ``n_cols x n_rows`` 8-bit grey pixels (valid CRCs, tiny IDAT)."""
 

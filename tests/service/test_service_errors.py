@@ -5,7 +5,15 @@ from __future__ import annotations
 import threading
 
 import pytest
-from svc_helpers import TEST_MAX_UPLOAD_BYTES, bomb_png, live_server, make_settings, png_declaring
+from svc_helpers import (
+    TEST_MAX_UPLOAD_BYTES,
+    bomb_png,
+    captured_service_log,
+    live_server,
+    make_settings,
+    metric_value,
+    png_declaring,
+)
 
 import lishield_guard
 
@@ -104,10 +112,11 @@ def test_multipart_without_file_field(client):
 
 
 def test_broken_multipart(client):
+    """A multipart body without a boundary parameter is the client's 400, not a 422 or 500."""
     r = client.post("/v1/screen", content=b"--zz\r\nContent-Disposition: form-data; name=\"file\"",
                     headers={"Content-Type": "multipart/form-data"})
-    assert r.status_code in (400, 422)
-    assert r.json()["code"] in ("invalid_multipart", "invalid_request")
+    _err(r, 400, "invalid_multipart")
+    assert "boundary" in r.json()["message"]
 
 
 def test_validation_error_and_unknown_route(client):
@@ -129,6 +138,8 @@ def test_batch_limits(client):
 
 
 def test_overload_gives_503_with_retry_after(demo_pair):
+    """A request over the queue limit is refused with 503 + Retry-After and counted once; its
+    own server, so the counts do not depend on other tests."""
     started, release = threading.Event(), threading.Event()
 
     def slow_detect(data, config):
@@ -152,11 +163,14 @@ def test_overload_gives_503_with_retry_after(demo_pair):
         ok = c2.post("/v1/screen", content=demo_pair[1].read_bytes())
         assert ok.status_code == 200
         text = c2.get("/metrics").text
-    assert "lishield_rejected_overload_total 1.0" in text
-    assert 'outcome="overloaded",route="/v1/screen"} 1.0' in text
+    assert metric_value(text, "lishield_rejected_overload_total") == 1.0
+    screen = {"route": "/v1/screen", "method": "POST"}
+    assert metric_value(text, "lishield_http_requests_total", outcome="overloaded", **screen) == 1
+    assert metric_value(text, "lishield_http_requests_total", outcome="ok", **screen) == 2
 
 
 def test_timeout_gives_504(demo_pair):
+    """A detection over DETECT_TIMEOUT_S is a 504, counted once in its own server's metrics."""
     release = threading.Event()
 
     def stuck_detect(data, config):
@@ -167,15 +181,61 @@ def test_timeout_gives_504(demo_pair):
     with live_server(s, detect_fn=stuck_detect) as srv, srv.client() as c:
         _err(c.post("/v1/screen", content=demo_pair[1].read_bytes()), 504, "timeout")
         release.set()
-        assert "lishield_detect_timeouts_total 1.0" in c.get("/metrics").text
+        text = c.get("/metrics").text
+    assert metric_value(text, "lishield_detect_timeouts_total") == 1.0
+    assert metric_value(text, "lishield_http_requests_total", route="/v1/screen",
+                        method="POST", outcome="timeout") == 1.0
 
 
-def test_bug_in_detector_is_a_logged_500(demo_pair, caplog):
-    def broken(data, config):
-        raise RuntimeError("boom")
+def _broken_detect(data, config):
+    raise RuntimeError("boom")
 
-    with live_server(make_settings(warmup=False), detect_fn=broken) as srv, srv.client() as c:
-        _err(c.post("/v1/screen", content=b"x"), 500, "internal_error")
+
+def test_bug_in_detector_is_a_logged_500():
+    """An exception inside the detector is a 500 whose traceback is logged at ERROR with the
+    request's id, and counted as internal_error."""
+    with (captured_service_log() as records,
+          live_server(make_settings(warmup=False), detect_fn=_broken_detect) as srv):
+        with srv.client() as c:
+            r = c.post("/v1/screen", content=b"x", headers={"X-Request-ID": "bug-500-test"})
+        _err(r, 500, "internal_error")
+        assert "boom" not in r.text  # the traceback stays in the log
+        # a new connection: uvicorn closes the one that carried the 500 (the exception is
+        # re-raised to the server after the response), so reusing it may be reset
+        with srv.client() as c:
+            text = c.get("/metrics").text
+    errors = [rec for rec in records if rec.levelname == "ERROR"]
+    assert len(errors) == 1, [rec.getMessage() for rec in records]
+    (rec,) = errors
+    assert rec.name == "lishield_guard.service"
+    assert rec.getMessage() == "unhandled error on POST /v1/screen (request_id=bug-500-test)"
+    assert rec.exc_info is not None
+    assert isinstance(rec.exc_info[1], RuntimeError) and str(rec.exc_info[1]) == "boom"
+    assert metric_value(text, "lishield_http_requests_total", route="/v1/screen",
+                        method="POST", outcome="internal_error") == 1.0
+
+
+@pytest.mark.xfail(strict=True, reason="service bug (#25 report): the 500 handler runs in "
+                   "Starlette's ServerErrorMiddleware, outside RequestContextMiddleware, so "
+                   "the 500 that says 'the request id is in the X-Request-ID header' lacks it")
+def test_500_carries_the_request_id_its_message_promises():
+    """The 500's message sends the client to X-Request-ID; the header must be there."""
+    with live_server(make_settings(warmup=False), detect_fn=_broken_detect) as srv, \
+            srv.client() as c:
+        r = c.post("/v1/screen", content=b"x", headers={"X-Request-ID": "bug-500-test"})
+    _err(r, 500, "internal_error")
+    assert "X-Request-ID" in r.json()["message"]
+    assert r.headers.get("x-request-id") == "bug-500-test"
+
+
+def test_client_errors_are_not_logged_as_errors(demo_pair):
+    """4xx answers to bad input are the client's problem: nothing at ERROR in the log."""
+    with (captured_service_log() as records,
+          live_server(make_settings(warmup=False)) as srv, srv.client() as c):
+        _err(c.post("/v1/screen", content=b"hello"), 415, "unsupported_media_type")
+        data = demo_pair[0].read_bytes()
+        _err(c.post("/v1/screen", content=data[: len(data) // 2]), 422, "undecodable_image")
+    assert [rec for rec in records if rec.levelno >= 40] == []
 
 
 def test_bad_config_fails_at_startup(tmp_path):
@@ -186,7 +246,29 @@ def test_bad_config_fails_at_startup(tmp_path):
             pass
 
 
-def test_no_input_above_produced_a_500(client):
-    text = client.get("/metrics").text
-    assert 'outcome="internal_error"' not in text
-    assert 'outcome="http_500"' not in text
+def test_hostile_inputs_are_counted_by_code_and_never_500(demo_pair):
+    """Every hostile input of this file, sent to a fresh server (no dependence on which tests
+    ran before): each is counted under its own error code, exactly as often as it was sent,
+    and no request is counted as internal_error or http_500."""
+    truncated = demo_pair[0].read_bytes()
+    corrupt = bytearray(bomb_png(256))
+    corrupt[60:80] = b"\xff" * 20
+    over = b"\x00" * (TEST_MAX_UPLOAD_BYTES + 1)
+    sent = [(b"", "empty_body"), (bytes(range(256)) * 40, "unsupported_media_type"),
+            (b"hello, I am not an image", "unsupported_media_type"),
+            (png_declaring(100_000, 100_000), "image_too_large"),
+            (bomb_png(), "image_too_large"),
+            (truncated[: len(truncated) // 2], "undecodable_image"),
+            (bytes(corrupt), "undecodable_image"), (over, "payload_too_large")]
+    with live_server(make_settings(warmup=False)) as srv, srv.client() as c:
+        for body, code in sent:
+            assert c.post("/v1/screen", content=body).json()["code"] == code
+        text = c.get("/metrics").text
+    screen = {"route": "/v1/screen", "method": "POST"}
+    for code in {code for _, code in sent}:
+        n = sum(c == code for _, c in sent)
+        assert metric_value(text, "lishield_http_requests_total", outcome=code, **screen) == n
+    for outcome in ("internal_error", "http_500", "ok"):
+        assert metric_value(text, "lishield_http_requests_total", outcome=outcome,
+                            **screen) == 0.0
+    assert 'outcome="internal_error"' not in text and 'outcome="http_500"' not in text
