@@ -102,9 +102,9 @@ def test_scan_accepts_config(calibrated, tiny_sets):
     img = sorted(tiny_sets["noise"].glob("*.jpg"))[0]
     r = subprocess.run([EXE, "scan", str(img), "--config", str(out), "--quiet"],
                        capture_output=True, text=True, timeout=120)
-    assert r.returncode in (0, 1), r.stderr
+    assert r.returncode == 0, r.stderr  # noise: clean under any calibrated config
     rec = json.loads(r.stdout.splitlines()[0])
-    assert rec["error"] is None and rec["protected"] in (True, False)
+    assert rec["error"] is None and rec["protected"] is False and rec["status"] == "clean"
 
 
 def test_service_accepts_config(calibrated):

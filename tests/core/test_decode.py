@@ -34,24 +34,61 @@ def gray(rng):
     return Image.fromarray(rng.integers(0, 256, (120, 160), dtype=np.uint8))
 
 
-@pytest.mark.parametrize("fmt", ["JPEG", "PNG", "TIFF", "WEBP", "BMP", "GIF"])
-def test_formats_decode_to_luma(gray, fmt):
-    d = decode(_encode(gray, fmt))
-    assert d.luma.shape == (120, 160)
+def _pillow_luma(data: bytes) -> np.ndarray:
+    """Reference luma: Pillow's own decode, as 8-bit L or BT.601 of its RGB (OpenCV's
+    rounding, as `decode` uses for 8-bit colour)."""
+    import cv2
+
+    img = Image.open(io.BytesIO(data))
+    if img.mode in ("L", "LA"):
+        return np.asarray(img.convert("L"))
+    return cv2.cvtColor(np.asarray(img.convert("RGB")), cv2.COLOR_RGB2GRAY)
+
+
+def _max_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
+    assert a.shape == b.shape, (a.shape, b.shape)
+    return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64))))
+
+
+@pytest.mark.parametrize("fmt, lossless", [("JPEG", False), ("PNG", True), ("TIFF", True),
+                                           ("WEBP", False), ("BMP", True), ("GIF", True)])
+def test_formats_decode_to_luma(gray, fmt, lossless):
+    """Each format decodes to the right pixels, not just the right shape: lossless formats
+    give the source back exactly; lossy ones equal Pillow's decode within 1 level (the fast
+    JPEG path decodes luma with libjpeg-turbo directly)."""
+    data = _encode(gray, fmt)
+    d = decode(data)
     assert d.format == fmt
+    assert d.luma.shape == (120, 160) and d.luma.dtype == np.uint8
+    if lossless:
+        np.testing.assert_array_equal(d.luma, np.asarray(gray))
+    else:
+        assert _max_abs_diff(d.luma, _pillow_luma(data)) <= 1
+        assert _max_abs_diff(d.luma, np.asarray(gray)) > 0  # really lossy: the check above
 
 
 @pytest.mark.parametrize("mode", ["RGB", "RGBA", "P", "CMYK", "LA", "I;16", "F"])
 def test_modes(gray, mode):
+    """Every pixel mode decodes to the luma of the source: exactly for grey stored as RGB,
+    RGBA, palette, LA, 16-bit (x 257) and float; within 1 level of Pillow's decode for a
+    CMYK JPEG (lossy)."""
+    g = np.asarray(gray)
     img = gray.convert(mode) if mode not in ("I;16", "F") else Image.fromarray(
-        (np.asarray(gray).astype(np.uint16) * 257) if mode == "I;16"
-        else np.asarray(gray).astype(np.float32))
-    fmt = "TIFF" if mode in ("CMYK", "F") else "PNG"
-    if mode == "CMYK":
-        fmt = "JPEG"
-    d = decode(_encode(img, fmt))
+        (g.astype(np.uint16) * 257) if mode == "I;16" else g.astype(np.float32))
+    fmt = {"CMYK": "JPEG", "F": "TIFF"}.get(mode, "PNG")
+    data = _encode(img, fmt)
+    d = decode(data)
     assert d.luma.shape == (120, 160)
-    assert np.isfinite(d.luma.astype(np.float64)).all()
+    if mode == "CMYK":
+        assert _max_abs_diff(d.luma, _pillow_luma(data)) <= 1
+    elif mode == "I;16":
+        assert d.luma.dtype == np.uint16
+        np.testing.assert_array_equal(d.luma, g.astype(np.uint16) * 257)
+    elif mode == "F":
+        assert d.luma.dtype == np.float32
+        np.testing.assert_array_equal(d.luma, g.astype(np.float32))
+    else:
+        np.testing.assert_array_equal(d.luma, g)
 
 
 def test_heic_round_trip(gray):
@@ -67,6 +104,8 @@ def test_exif_orientation_is_reported(gray):
     d = decode(_encode(gray.convert("RGB"), "JPEG", exif=exif))
     assert d.orientation == 6
     assert d.luma.shape == (120, 160)  # stored (sensor) rows are kept
+    data = _encode(gray.convert("RGB"), "JPEG", exif=exif)
+    assert _max_abs_diff(d.luma, _pillow_luma(data)) <= 1  # not rotated either
 
 
 def test_not_an_image():
@@ -196,7 +235,7 @@ def test_narrow_tall_jpegs_decode_at_reduced_scale(rng, shape):
     s = round(d.row_scale)
     assert s in (1, 2, 4, 8)
     assert d.luma.shape == (-(-shape[0] // s), -(-shape[1] // s))
-    assert detect(_jpeg(rng, shape)).status in ("clean", "protected", "undetermined")
+    assert detect(_jpeg(rng, shape)).status == "clean"  # noise, enough rows to look
 
 
 def test_fifo_and_device_paths_are_refused_without_reading(tmp_path):

@@ -53,7 +53,10 @@ def test_knots_accumulate_duty():
     u, on = pattern_knots(spec, "W", 1.0)
     assert u[0] == 0 and u[-1] == spec.n_tones
     assert np.all(np.diff(u) >= 0) and np.all(np.diff(on) >= -1e-12)
-    assert on[-1] == pytest.approx(spec.duty * spec.n_tones, rel=0.2)
+    # ON time per pattern, in slots, at duty 0.5 and c_1 = 1 (400, 600, 800 Hz: 1, 1.5 and 2
+    # cycles per slot): 1 x 0.5 + (1 + 1) x 0.5 / 1.5 + 2 x 0.5 / 2 = 5/3 (not duty x M = 1.5:
+    # the 600 Hz tone ends its slot in an ON half cycle)
+    assert on[-1] == pytest.approx(5 / 3, abs=1e-12)
     with pytest.raises(ValueError, match="cycles_f1"):
         pattern_knots(spec, "W", 0.0)
 

@@ -54,7 +54,9 @@ def test_too_small_image_is_undetermined_not_clean(shape):
 def test_too_small_for_the_paper_block_grid_is_undetermined():
     cfg = lishield_guard.DetectorConfig(profile="paper")
     assert lishield_guard.detect(png_bytes(12, 200), cfg).status == "undetermined"
-    assert lishield_guard.detect(png_bytes(200, 200), cfg).status in ("clean", "protected")
+    # 200 x 200 is enough to look: Algorithm 1 decides (and false-alarms on this noise PNG,
+    # the paper's known weakness, see test_default_profile_beats_paper_on_clean_photos)
+    assert lishield_guard.detect(png_bytes(200, 200), cfg).status == "protected"
 
 
 def test_analysable_image_has_status_clean():

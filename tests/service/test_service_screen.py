@@ -48,7 +48,9 @@ def test_explain_and_request_id(client, demo_pair):
     r = client.post("/v1/screen?explain=true", content=demo_pair[0].read_bytes(),
                     headers={"X-Request-ID": "upload-42"})
     assert r.status_code == 200
-    assert isinstance(r.json()["evidence"], dict)
+    want = lishield_guard.detect(demo_pair[0].read_bytes()).to_dict()["evidence"]
+    assert r.json()["evidence"]["reason"] == want["reason"]
+    assert r.json()["evidence"]["best"]["spec"] == want["best"]["spec"]
     assert r.json()["request_id"] == "upload-42" == r.headers["x-request-id"]
 
 
