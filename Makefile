@@ -10,7 +10,7 @@ RUN_STAMP := $(VENV)/.installed-run
 DEV_STAMP := $(VENV)/.installed-dev
 IS_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo yes)
 
-.PHONY: run test lint bench clean venv tools
+.PHONY: run test lint bench clean venv tools mutants
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -50,6 +50,11 @@ tools:
 
 test: $(DEV_STAMP) tools
 	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+# One-line mutants of the pass rules, look-alike defences and scan --resume, each run in a
+# temporary copy against the tests named after it (docs/testing.md); lists the survivors.
+mutants: $(DEV_STAMP)
+	$(BIN)/python scripts/mutate_rules.py
 
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
