@@ -71,16 +71,18 @@ def test_pwm_dimming_is_not_a_barcode(make_led_image, pwm_hz):
 # below get past every other term of the fold, grid and exact-fit rules (asserted on the
 # evidence), so removing the look-alike margin, the gain's look-alike term or the per-plane
 # steady-square-wave gate (`modelfit.steady_rho` >= `LOOKALIKE_DOMINANT_RHO`) fails them.
-# 720 x 960 frames and one spec keep each under about 3 s.
+# The first stage is off (screen_false_prob=None) so that the search under test runs whatever
+# the screen would clear on its own; 720 x 960 frames and one spec keep each under about 3 s.
 
 LOOKALIKE_ROWS, LOOKALIKE_COLS = 720, 960
 
 
-def _one_spec(name: str):
+def _one_spec(name: str, **detector):
+    """The shipped config with one spec and these detector settings changed."""
     from lishield_guard.config import AppConfig, Policy, load_config
 
     base = load_config()
-    return AppConfig(detector=base.detector, limits=base.limits,
+    return AppConfig(detector=base.detector.replace(**detector), limits=base.limits,
                      policies=(Policy("no-distribution", (PRESETS[name],)),))
 
 
@@ -108,10 +110,11 @@ def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike
     look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike)."""
     from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO
 
-    cfg = _one_spec("table1-seq3")
-    det = cfg.detector
     img = make_led_image(None, flicker=_flicker(kind, freq_hz, level), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)
+    assert not detect(img, _one_spec("table1-seq3")).protected  # with the first stage too
+    cfg = _one_spec("table1-seq3", screen_false_prob=None)
+    det = cfg.detector
     v = detect(img, cfg)
     assert not v.protected, v.evidence["reason"]
     sw = _rows_candidate(v)["sweep"]
@@ -129,7 +132,7 @@ def test_sine_flicker_reaches_every_fit_and_only_the_lookalike_rejects_it(make_l
     and in each the steady look-alike fits the rows better still. Catches the fold margin, the
     grid margin or any gain term of `fit_rule` (or the gain's look-alike term) removed, and
     the gate lowered so far that this plane goes unrefined."""
-    cfg = _one_spec("table1-seq3")
+    cfg = _one_spec("table1-seq3", screen_false_prob=None)
     det = cfg.detector
     img = make_led_image(None, flicker=_flicker("sine", 500.0, 0.3), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)
