@@ -250,10 +250,18 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
         m = match_spec(spec, chans, det)
         if (pid, spec) not in screened:
             best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
-            m = replace(m, protected=False, reason=(
-                f"first stage: no column-coherent stripes (at most {best.frames} frame(s) of "
-                f"a track above the p={best.false_prob:g} noise threshold, "
-                f"{det.screen_min_frames} needed); pattern search skipped"))
+            steady = [r.steady_rho for pa in chans.values()
+                      if (r := screens[id(pa)]).steady_rho is not None]
+            if steady:
+                why = (f"the stripes are a steady square wave (look-alike rho="
+                       f"{min(steady):.3f} >= {LOOKALIKE_DOMINANT_RHO}): a PWM-dimmed or "
+                       f"mains-flickering light or a regular texture, not a barcode")
+            else:
+                why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
+                       f"track above the p={best.false_prob:g} noise threshold, "
+                       f"{det.screen_min_frames} needed)")
+            m = replace(m, protected=False,
+                        reason=f"first stage: {why}; pattern search skipped")
             out.append((pid, m))
             continue
         if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps(spec.name),

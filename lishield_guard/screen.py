@@ -12,6 +12,12 @@ one track at a loose p (0.01 by default, against 1e-5 for the tone tracks), so:
   1 - (1 - p)^(n_frames) per track for one frame: the screen is meant to be loose, and its
   miss rate on barcodes is what is measured (`tests/core/test_screen.py`, and
   ``lishield-guard bench`` reports the fraction of clean photos it clears).
+
+A plane that has stripes is then asked whether they are *steady*: when one stationary square
+wave (any frequency, duty, phase and exposure: `modelfit.lookalike_rho`) fits its rows at rho
+>= `modelfit.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
+or a regular texture, and no barcode could explain the rows well enough to pass even the
+laxest gain rule; the plane is cleared as well.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, steady_rho
 from lishield_guard.spectrum import PlaneAnalysis, peak_threshold
 
 __all__ = ["ScreenResult", "screen_plane"]
@@ -39,17 +46,24 @@ class ScreenResult:
         Window length of that track (0 when there are no tracks).
     false_prob : float
         Per-frame false-pass probability the threshold was set for.
+    steady_rho : float or None
+        How well one steady square wave fits the rows, when the stripes were tested (the
+        plane had enough frames); the plane is cleared at `LOOKALIKE_DOMINANT_RHO` or above.
     """
 
     passed: bool
     frames: int
     window_rows: int
     false_prob: float
+    steady_rho: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready fields."""
         return {"passed": self.passed, "frames": self.frames, "window_rows": self.window_rows,
-                "false_prob": self.false_prob}
+                "false_prob": self.false_prob, "steady_rho": self.steady_rho}
+
+
+STEADY_WINDOW_CYCLES = 4.0  # the steady test high-passes at 1.5 cycles per this many stripes
 
 
 def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frames: int
@@ -71,10 +85,18 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
     """
     if false_prob is None:
         return ScreenResult(True, -1, 0, 0.0)
-    best, best_w = 0, 0
+    best, best_w, best_f = 0, 0, 0.0
     for track in analysis.tracks:
         thr = peak_threshold(false_prob, n_bins=track.n_bins, n_blocks=track.n_blocks)
-        count = int(np.count_nonzero(track.snr > thr))
+        hits = track.snr > thr
+        count = int(np.count_nonzero(hits))
         if count > best:
             best, best_w = count, track.window_rows
-    return ScreenResult(best >= min_frames, best, best_w, float(false_prob))
+            best_f = float(np.median(track.freq_cpr[hits]))
+    if best < min_frames:
+        return ScreenResult(False, best, best_w, float(false_prob))
+    steady = None
+    if analysis.fit_blocks is not None and best_f > 0:
+        steady = steady_rho(analysis.fit_blocks, STEADY_WINDOW_CYCLES / best_f)
+    passed = steady is None or steady < LOOKALIKE_DOMINANT_RHO
+    return ScreenResult(passed, best, best_w, float(false_prob), steady)

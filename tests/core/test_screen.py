@@ -24,6 +24,24 @@ def test_steady_light_photo_is_cleared_by_the_first_stage(make_led_image, photo)
         assert cand["reason"].startswith(FIRST_STAGE)
 
 
+@pytest.mark.parametrize("pwm_hz, duty", [(400.0, 0.3), (1000.0, 0.5), (2400.0, 0.7)])
+def test_pwm_light_on_a_photo_is_cleared_by_the_first_stage(make_led_image, pwm_hz, duty):
+    """A PWM-dimmed light (deep, column-coherent stripes on scikit-image's moon photo at 1080p)
+    passes the track screen; its stripes are one steady square wave, so the first stage clears
+    every spec before any pattern search (the steady test removed, the search would run).
+    On strongly textured photos the texture keeps the look-alike below the 0.99 the test
+    needs and the PWM goes on to the pattern search, which rejects it later."""
+    t = np.arange(1080) / 30_000.0
+    flicker = 0.25 + 0.5 * (((t * pwm_hz) % 1.0) < duty)
+    moon = np.repeat(data.moon()[..., None], 3, axis=2)
+    v = detect(make_led_image(None, flicker=flicker, scene=cv2.resize(moon, (1440, 1080))))
+    assert not v.protected
+    reasons = [c["reason"] for c in v.evidence["candidates"] if c["axis"] == "rows"]
+    assert reasons and all(r.startswith(f"{FIRST_STAGE}: the stripes are a steady square wave")
+                           for r in reasons), reasons
+    assert v.evidence["candidates"][0]["sweep"] is None
+
+
 def test_screen_counts_frames_above_its_own_threshold():
     snr = np.array([0.0, 50.0, 60.0, 1.0])
     track = Track(64, 0.01, 0.4, np.full(4, 0.1), snr, 1e9, n_bins=20.0, n_blocks=8)
