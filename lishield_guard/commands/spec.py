@@ -112,6 +112,7 @@ def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
         "intensity_levels": spec.intensity_levels,
         "order": spec.order,
         "slot_order": list(spec.slot_order()),
+        "phase": spec.phase,
         "ratio_tol": ratio_tol,
         "flicker_threshold_hz": flicker_threshold_hz,
         "max_freq_hz": DEFAULT_MAX_FREQ_HZ,
@@ -124,12 +125,16 @@ def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
     }
 
 
+EMITTER_RULES = ("flicker", "switching")  # rules on our own LEDs, not on what is detected
+
+
 def _print_summary(s: dict[str, Any]) -> None:
     typer.echo(f"spec {s['name']}" + (f": {s['description']}" if s["description"] else ""))
     for c, fs in s["channels"].items():
         typer.echo(f"  channel {c}: {', '.join(f'{f:g}' for f in fs)} Hz")
     typer.echo(f"  f_B = {s['f_b_hz']:g} Hz (slot {s['slot_s'] * 1e3:.4g} ms), pattern period "
-               f"M/f_B = {s['pattern_period_s'] * 1e3:.4g} ms, slot order {s['slot_order']}")
+               f"M/f_B = {s['pattern_period_s'] * 1e3:.4g} ms, slot order {s['slot_order']}, "
+               f"phase {s['phase']}")
     typer.echo(f"  lowest side lobe f_B/M = {s['lowest_side_lobe_hz']:.4g} Hz, duty {s['duty']:g},"
                f" intensity levels {s['intensity_levels']}, order {s['order']}")
     typer.echo(f"  ratio set ({len(s['ratios'])} values, "
@@ -142,6 +147,13 @@ def _print_summary(s: dict[str, Any]) -> None:
     for r in s["rules"]:
         line = f"    {r['status'].upper():<7} {r['rule']}"
         typer.echo(line + (f": {r['message']}" if r["message"] else ""))
+    emitter = [r["rule"] for r in s["rules"] if r["rule"] in EMITTER_RULES
+               and r["status"] == "fail"]
+    if emitter:
+        flags = " ".join(f"--allow {e}" for e in emitter)
+        typer.echo(f"  note: {', '.join(emitter)} concern(s) what our firmware emits (it compiles "
+                   f"this spec only with `firmware {flags}`); the detector searches such "
+                   f"emitters anyway (docs/policies.md)")
 
 
 def _fail(exc: Exception) -> typer.Exit:
