@@ -39,6 +39,9 @@ PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit_*_pe
 class DetectorConfig:
     """Every tunable number of the detector. Profiles: ``"default"`` and ``"paper"``.
 
+    The field defaults are the shipped, calibrated ``lishield_guard/data/default.toml``
+    (``DetectorConfig() == default_config().detector``; a test keeps the two equal).
+
     Paper profile (Algorithm 1, Sec. 5 and 7.3)
     -------------------------------------------
     n_block_rows, n_block_cols : int
@@ -164,34 +167,34 @@ class DetectorConfig:
     min_row_rate_hz: float = 30_000.0
     max_row_rate_hz: float = 120_000.0
     max_downscale: float = 4.0
-    peak_false_prob: float = 1e-3
-    tone_rel_tol: float = 0.04
+    peak_false_prob: float = 1e-5
+    tone_rel_tol: float = 0.05
     min_tones: int = 2
     min_tones_rgb: int = 3
-    min_occupancy: float = 0.04
+    min_occupancy: float = 0.08
     max_occupancy: float = 0.8
-    min_purity: float = 0.5
+    min_purity: float = 0.3
     orientations: Literal["both", "rows"] = "both"
-    fold_min_rho: float = 0.85
+    fold_min_rho: float = 0.9
     fold_min_snr: float = 30.0
     fold_min_margin: float = 0.05
     period_sweep: bool = True
-    sweep_min_rho: float = 0.9
-    sweep_min_margin: float = 0.1
-    sweep_min_coherence: float = 10.0
+    sweep_min_rho: float = 0.8
+    sweep_min_margin: float = 0.3
+    sweep_min_coherence: float = 3.0
     model_fit: bool = True
-    fit_min_rho: float = 0.95
-    fit_min_gain: float = 4.0
-    fit_min_rho_rgb: float = 0.9
-    fit_min_gain_rgb: float = 4.0
-    fit_max_leak_rgb: float = 0.0
-    fit_min_rho_periodic: float = 1.0
-    fit_min_gain_periodic: float = math.inf
-    tone_min_fit_gain: float = -math.inf
+    fit_min_rho: float = 0.9
+    fit_min_gain: float = 8.0
+    fit_min_rho_rgb: float = 0.8
+    fit_min_gain_rgb: float = 2.0
+    fit_max_leak_rgb: float = 0.3
+    fit_min_rho_periodic: float = 0.9
+    fit_min_gain_periodic: float = 1.0
+    tone_min_fit_gain: float = 0.5
     screen_false_prob: float | None = 0.01
     screen_min_frames: int = 2
     fast_decode: bool = True
-    max_decode_rows: int = 1536
+    max_decode_rows: int = 768
 
     def __post_init__(self) -> None:
         if self.profile not in ("default", "paper"):

@@ -185,5 +185,5 @@ def test_periodic_path_of_fit_passes():
     assert not fit_passes({**fit, "rho": 0.84}, det)
     assert not fit_passes({**fit, "coherence_t": 2.9}, det)
     assert not fit_passes(fit, det.replace(fit_min_gain_periodic=float("inf")))
-    assert not fit_passes(fit, DetectorConfig())  # off by default
+    assert fit_passes(fit, DetectorConfig())  # on in the shipped (default) thresholds
     assert fit_passes({**fit, "n_periods": 1.0, "gain": 8.0}, det)

@@ -139,11 +139,15 @@ def test_partial_config_keeps_shipped_policies_and_calibrated_values(tmp_path):
     shipped = default_config()
     assert cfg.detector.fit_min_rho == 0.85
     assert cfg.policies == shipped.policies and cfg.policies
-    # keys left out keep the shipped calibrated values, not the dataclass defaults
+    # keys left out keep the shipped calibrated values
     assert cfg.detector.replace(fit_min_rho=shipped.detector.fit_min_rho) == shipped.detector
-    assert cfg.detector.peak_false_prob == shipped.detector.peak_false_prob != \
-        DetectorConfig().peak_false_prob
     assert cfg.limits == shipped.limits
+
+
+def test_one_source_of_defaults():
+    """`DetectorConfig()` is the shipped detector: a recalibrated default.toml must update the
+    dataclass defaults too (issue 21: they disagreed on 17 settings)."""
+    assert DetectorConfig() == default_config().detector
 
 
 def test_partial_limits_merge_key_by_key(tmp_path):
