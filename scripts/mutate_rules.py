@@ -104,6 +104,10 @@ MUTANTS: tuple[Mutant, ...] = (
     _rule("steady-gate-off", "_axis_sweeps: planes a steady square wave fits at rho >= "
           "LOOKALIKE_DOMINANT_RHO are refined like any other", "_axis_sweeps",
           "if steady >= LOOKALIKE_DOMINANT_RHO:", "if False:", group="defences"),
+    _rule("screen-steady-gate-off", "screen_plane: a plane with stripes passes the first stage "
+          "even when one steady square wave fits them at rho >= LOOKALIKE_DOMINANT_RHO",
+          "screen_plane", "passed = steady is None or steady < LOOKALIKE_DOMINANT_RHO",
+          "passed = True", path="lishield_guard/screen.py", group="defences"),
     _rule("steady-gate-at-0.95", "LOOKALIKE_DOMINANT_RHO = 0.99 -> 0.95 (more planes gated)",
           None, "LOOKALIKE_DOMINANT_RHO = 0.99", "LOOKALIKE_DOMINANT_RHO = 0.95",
           path="lishield_guard/modelfit.py", group="defences"),

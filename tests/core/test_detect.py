@@ -107,12 +107,18 @@ def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike
     at rho >= `modelfit.LOOKALIKE_DOMINANT_RHO`, so the plane is not refined (the sweep entry
     carries ``steady_rho`` and no exact fit: catches the gate disabled). The tiled Table 1
     sequence 3 fits the stripes above ``sweep_min_rho`` with coherent column blocks; only the
-    look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike)."""
+    look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike).
+    With the first stage on, `screen.screen_plane` clears the plane by the same test (catches
+    that gate disabled)."""
     from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO
 
     img = make_led_image(None, flicker=_flicker(kind, freq_hz, level), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)
-    assert not detect(img, _one_spec("table1-seq3")).protected  # with the first stage too
+    # with the first stage on, the same steady-wave test clears the plane before any search
+    screened = detect(img, _one_spec("table1-seq3"))
+    assert not screened.protected
+    assert _rows_candidate(screened)["reason"].startswith(
+        "first stage: the stripes are a steady square wave"), screened.evidence["reason"]
     cfg = _one_spec("table1-seq3", screen_false_prob=None)
     det = cfg.detector
     v = detect(img, cfg)
