@@ -115,6 +115,9 @@ def kinds(item: dict) -> list[str]:
 def decided_by(verdict) -> str:
     """Which default-profile stage flagged an image: tone tracks, folding, the period sweep's
     grid fit or its exact-model refinement."""
+    stage = verdict.evidence.get("stage")
+    if stage in ("tones", "fold", "sweep", "exact fit"):
+        return stage.replace(" ", "-")
     best = verdict.evidence.get("best") or {}
     if best.get("sweep") and "exact capture model" in str(verdict.evidence.get("reason")):
         return "exact-fit"

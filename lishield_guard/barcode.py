@@ -49,6 +49,12 @@ class SpecMatch:
         All decision rules hold.
     reason : str
         Why the rules hold or which one fails.
+    fold, sweep : dict or None
+        The folding and period-sweep evidence, when those stages ran.
+    stage : str
+        The stage that decided: ``"first stage"`` (no pattern search), ``"tones"``,
+        ``"fold"``, ``"sweep"`` (the grid fit) or ``"exact fit"``; for a spec no stage flagged,
+        the last stage that looked.
     """
 
     spec: str
@@ -63,6 +69,7 @@ class SpecMatch:
     reason: str
     fold: dict | None = None
     sweep: dict | None = None
+    stage: str = "tones"
 
     @property
     def score(self) -> float:
@@ -82,7 +89,7 @@ class SpecMatch:
                 "matched_hz": self.matched, "n_matched": self.n_matched,
                 "required": self.required, "purity": round(self.purity, 4),
                 "switches": self.switches, "reason": self.reason, "fold": self.fold,
-                "sweep": self.sweep}
+                "sweep": self.sweep, "stage": self.stage}
 
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:

@@ -260,7 +260,7 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
                        f"track above the p={best.false_prob:g} noise threshold, "
                        f"{det.screen_min_frames} needed)")
-            m = replace(m, protected=False,
+            m = replace(m, protected=False, stage="first stage",
                         reason=f"first stage: {why}; pattern search skipped")
             out.append((pid, m))
             continue
@@ -275,9 +275,9 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                 reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
                           f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
                           f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
-                m = replace(m, protected=True, reason=reason, fold=info)
+                m = replace(m, protected=True, reason=reason, fold=info, stage="fold")
             elif info is not None:
-                m = replace(m, fold=info)
+                m = replace(m, fold=info, stage="fold")
         if not m.protected and det.period_sweep:
             fits = sweeps(spec.name)
             passing = [f for f in fits if sweep_passes(f, det)]
@@ -298,16 +298,16 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
                           + ("" if fit.get("chroma_leak") is None else
                              f" and in its own colour plane only (chroma leak "
                              f"{fit['chroma_leak']:.2f})"))
-                m = replace(m, protected=True, reason=reason, sweep=sw)
+                m = replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
             elif passing:
                 reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
                           f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
                           f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
                           f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
                           f"block (t={sw['coherence_t']:.1f})")
-                m = replace(m, protected=True, reason=reason, sweep=sw)
+                m = replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
             elif sw is not None:
-                m = replace(m, sweep=sw)
+                m = replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
         out.append((pid, m))
         if m.protected:  # the verdict is certain: later specs are not searched
             break
@@ -640,10 +640,14 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
     axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
     tried = sorted(({"axis": a, "policy": p, **c.to_dict()} for a, p, c in candidates),
                    key=lambda d: (-d["n_matched"], -d["purity"]))
-    evidence = {"reason": m.reason, "axis": axis, "best": m.to_dict(), "candidates": tried[:6],
-                "orientation_exif": orientation, "format": fmt}
+    evidence = {"reason": m.reason, "axis": axis, "stage": m.stage, "best": m.to_dict(),
+                "candidates": tried[:6], "orientation_exif": orientation, "format": fmt}
+    # matches / required count the deciding stage's evidence: tones for the tone tracks, one
+    # pattern fit of one needed for folding, the sweep and the exact fit
+    pattern = m.protected and m.stage != "tones"
     return Verdict(protected=m.protected, policy=pid if m.protected else None,
-                   matches=m.n_matched, required=m.required, evidence=evidence,
+                   matches=1 if pattern else m.n_matched, required=1 if pattern else m.required,
+                   evidence=evidence,
                    skipped=tuple(skipped), timings_ms=timings, profile="default",
                    score=m.score)
 

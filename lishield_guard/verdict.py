@@ -46,9 +46,12 @@ class Verdict:
     policy : str or None
         Id of the matched policy (None when not protected).
     matches : int
-        Matching ratios (paper profile) or matched tones (default profile) of the best policy.
+        Evidence of the stage that decided: matching ratios (paper profile); matched tones
+        (default profile, tone tracks); 1 when folding, the sweep or the exact fit flagged the
+        image (``evidence["stage"]`` names the stage).
     required : int
-        How many were required for a verdict of protected (M_b, or tones needed).
+        How many were required for a verdict of protected (M_b, tones needed, or 1 pattern
+        fit).
     evidence : dict
         JSON-ready detail: detected tones (cycles/row), ratios, blocks, best candidate, reason.
     skipped : tuple of str

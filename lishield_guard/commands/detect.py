@@ -63,9 +63,13 @@ def _describe(v, label: str, *, explain: bool) -> str:
         lines.append(f"{label}: UNDETERMINED (the detector could not look; not clean)")
     else:
         lines.append(f"{label}: clean, not protected (no policy barcode found)")
-    unit = "ratios" if v.profile == "paper" else "tones"
-    lines.append(f"  matches: {v.matches}/{v.required} {unit} required  "
-                 f"score: {v.score:.3f}  profile: {v.profile}")
+    stage = ev.get("stage")
+    if v.profile == "default" and v.protected and stage not in (None, "tones"):
+        counts = f"{v.matches}/{v.required} pattern fit ({stage})"
+    else:
+        unit = "ratios" if v.profile == "paper" else "tones"
+        counts = f"{v.matches}/{v.required} {unit} required"
+    lines.append(f"  matches: {counts}  score: {v.score:.3f}  profile: {v.profile}")
     reason = ev.get("reason")
     if reason is None and v.profile == "paper":
         reason = (f"{v.matches} ratio match(es) among {len(ev.get('frequencies_hz', []))} "
