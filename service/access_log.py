@@ -10,6 +10,9 @@ import time
 import uuid
 from typing import Any
 
+from starlette.requests import Request
+
+from service.errors import error_response
 from service.metrics import Metrics
 
 __all__ = ["ACCESS_LOGGER", "JsonFormatter", "RequestContextMiddleware", "configure_logging"]
@@ -80,11 +83,12 @@ class RequestContextMiddleware:
         state = scope.setdefault("state", {})
         rid = state["request_id"] = _request_id(scope)
         status = 500
+        started = False
 
         async def send_wrapper(message) -> None:
-            nonlocal status
+            nonlocal status, started
             if message["type"] == "http.response.start":
-                status = message["status"]
+                status, started = message["status"], True
                 message.setdefault("headers", [])
                 message["headers"] = [*message["headers"], (b"x-request-id", rid.encode())]
             await send(message)
@@ -92,10 +96,14 @@ class RequestContextMiddleware:
         self.metrics.in_flight.inc()
         try:
             await self.app(scope, receive, send_wrapper)
-        except Exception:
+        except Exception as exc:
             status = 500
             state.setdefault("error_code", "internal_error")
-            raise
+            if started:  # the response is on its way: nothing left to answer with
+                raise
+            # answer here, inside the request's context: the 500 carries its X-Request-ID,
+            # is logged once, and the connection stays usable
+            await error_response(Request(scope, receive), exc)(scope, receive, send_wrapper)
         finally:
             self.metrics.in_flight.dec()
             self._record(scope, state, status, time.perf_counter() - t0)

@@ -215,9 +215,6 @@ def test_bug_in_detector_is_a_logged_500():
                         method="POST", outcome="internal_error") == 1.0
 
 
-@pytest.mark.xfail(strict=True, reason="service bug (#25 report): the 500 handler runs in "
-                   "Starlette's ServerErrorMiddleware, outside RequestContextMiddleware, so "
-                   "the 500 that says 'the request id is in the X-Request-ID header' lacks it")
 def test_500_carries_the_request_id_its_message_promises():
     """The 500's message sends the client to X-Request-ID; the header must be there."""
     with live_server(make_settings(warmup=False), detect_fn=_broken_detect) as srv, \
