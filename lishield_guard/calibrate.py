@@ -87,13 +87,13 @@ from lishield_guard.detect import (
     fold_fits,
     fold_rule,
     grid_rule,
+    screen_specs,
     spec_planes,
     sweep_fits,
     tone_check_on,
     tone_rule,
 )
 from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
-from lishield_guard.screen import screen_plane
 
 __all__ = [
     "Claim",
@@ -343,13 +343,9 @@ def screened_candidates(evidence, config: AppConfig) -> np.ndarray:
         planes = evidence.axes.get(axis)
         if not planes:
             continue
-        passed = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
-                                       min_frames=det.screen_min_frames).passed
-                  for pa in planes.values()}
-        for si, spec in enumerate(specs):
-            chans = spec_planes(spec, planes)
-            out[ai * len(specs) + si] = chans is not None and any(
-                passed[id(pa)] for pa in chans.values())
+        _, passed = screen_specs(planes, list(enumerate(specs)), det, evidence.grid_cpr)
+        for si, _spec in passed:
+            out[ai * len(specs) + si] = True
     return out
 
 

@@ -24,7 +24,7 @@ from lishield_guard.fold import candidate_periods, fold_match, refine_period, sw
 from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
 from lishield_guard.paper import run_paper
 from lishield_guard.profile import block_row_profiles, merge_blocks
-from lishield_guard.screen import screen_plane
+from lishield_guard.screen import jpeg_grid_cpr, screen_plane
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
@@ -199,6 +199,11 @@ class Evidence:
     format: str = "array"
     skipped: tuple[str, ...] = ()
 
+    @property
+    def grid_cpr(self) -> tuple[float, ...]:
+        """The source's JPEG block grid in cycles per analysed row (`screen.jpeg_grid_cpr`)."""
+        return jpeg_grid_cpr(self.format, self.row_scale)
+
     def with_false_prob(self, false_prob: float) -> Evidence:
         """The same evidence judged at another per-frame false-pass probability."""
         axes = {a: {k: pa.with_false_prob(false_prob) for k, pa in planes.items()}
@@ -225,13 +230,13 @@ def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
     return None if any(v is None for v in chans.values()) else chans
 
 
-def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
-                 ) -> list[tuple[str, SpecMatch]]:
+def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
+                 grid_cpr: tuple[float, ...] = ()) -> list[tuple[str, SpecMatch]]:
     """Match every spec whose planes are available on one axis: tone tracks (confirmed by an
     exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
     sweep (computed once per axis for all specs, when first needed)."""
     out = []
-    screens, screened = _screen_specs(planes, specs, det)
+    screens, screened = screen_specs(planes, specs, det, grid_cpr)
 
     @cache
     def periods() -> list[float]:
@@ -314,13 +319,14 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
     return out
 
 
-def _screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig
-                  ) -> tuple[dict, list]:
+def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
+                 grid_cpr: tuple[float, ...] = ()) -> tuple[dict, list]:
     """The first stage on one axis: `screen.screen_plane` of every plane (by ``id``) and the
     (policy id, spec) pairs with a plane that passed, in order. Detection and calibration
-    (`sweep_fits`, `fold_fits`) search the same specs with the same candidate periods."""
+    (`sweep_fits`, `fold_fits`, `calibrate.screened_candidates`) search the same specs with
+    the same candidate periods. ``grid_cpr``: the source's JPEG grid (`screen.jpeg_grid_cpr`)."""
     screens = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
-                                    min_frames=det.screen_min_frames)
+                                    min_frames=det.screen_min_frames, grid_cpr=grid_cpr)
                for pa in planes.values()}
     return screens, [(pid, spec) for pid, spec in specs
                      if _screen_passes(spec_planes(spec, planes), screens)]
@@ -509,7 +515,7 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     for axis_name, planes in evidence.axes.items():
         if "L" not in planes:
             continue
-        _, specs = _screen_specs(planes, all_specs, det)
+        _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
         periods = _periods(planes["L"], specs, det)
         sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
@@ -533,7 +539,7 @@ def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     for axis_name, planes in evidence.axes.items():
         if "L" not in planes:
             continue
-        _, specs = _screen_specs(planes, all_specs, det)
+        _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
         periods = _periods(planes["L"], specs, det)
         for pid, spec in specs:
             chans = spec_planes(spec, planes)
@@ -620,7 +626,8 @@ def decide(evidence: Evidence, config: AppConfig) -> Verdict:
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     candidates = []
     for axis_name, planes in evidence.axes.items():
-        candidates += [(axis_name, pid, m) for pid, m in _decide_axis(planes, specs, det)]
+        candidates += [(axis_name, pid, m)
+                       for pid, m in _decide_axis(planes, specs, det, evidence.grid_cpr)]
     return _verdict(candidates, config, list(evidence.skipped), {}, evidence.orientation,
                     evidence.format)
 
@@ -659,6 +666,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     mono = [(pid, s) for pid, s in specs if not s.is_rgb]
     rgb = [(pid, s) for pid, s in specs if s.is_rgb]
     axes = (0, 1) if det.orientations == "both" else (0,)
+    grid = jpeg_grid_cpr(decoded.format, decoded.row_scale)
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
@@ -675,7 +683,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
             planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
         skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
         with timer("match"):
-            found = _decide_axis(planes, mono, det)
+            found = _decide_axis(planes, mono, det, grid)
         if rgb and not any(m.protected for _, m in found):
             # Colour planes whenever luma is not decisive: an RGB barcode's channels can
             # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
@@ -686,7 +694,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
                                                decoded.row_scale)
                                    for i, c in enumerate("RGB")})
             with timer("match"):
-                found += _decide_axis(planes, rgb, det)
+                found += _decide_axis(planes, rgb, det, grid)
         elif rgb:
             skipped.append(f"{name}: colour planes (luma verdict certain)")
         candidates += [(name, pid, m) for pid, m in found]

@@ -13,6 +13,10 @@ one track at a loose p (0.01 by default, against 1e-5 for the tone tracks), so:
   miss rate on barcodes is what is measured (`tests/core/test_screen.py`, and
   ``lishield-guard bench`` reports the fraction of clean photos it clears).
 
+A JPEG's own block grid (8x8 DCT blocks, 16-row MCUs with 4:2:0 chroma) is a periodic,
+column-coherent pattern too: frames whose peak sits on a harmonic of that grid
+(`jpeg_grid_cpr`, at the decoding scale) are not counted.
+
 A plane that has stripes is then asked whether they are *steady*: when one stationary square
 wave (any frequency, duty, phase and exposure: `modelfit.lookalike_rho`) fits its rows at rho
 >= `modelfit.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
@@ -29,7 +33,7 @@ import numpy as np
 from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, steady_rho
 from lishield_guard.spectrum import PlaneAnalysis, peak_threshold
 
-__all__ = ["ScreenResult", "screen_plane"]
+__all__ = ["ScreenResult", "jpeg_grid_cpr", "screen_plane"]
 
 
 @dataclass(frozen=True)
@@ -64,10 +68,28 @@ class ScreenResult:
 
 
 STEADY_WINDOW_CYCLES = 4.0  # the steady test high-passes at 1.5 cycles per this many stripes
+JPEG_MCU_ROWS = 16  # the coarsest JPEG grid (4:2:0 MCUs); 8-row DCT blocks are its harmonics
 
 
-def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frames: int
-                 ) -> ScreenResult:
+def jpeg_grid_cpr(fmt: str, row_scale: float) -> tuple[float, ...]:
+    """Frequencies (cycles per analysed row, in (0, 0.5]) of a JPEG's block grid: every
+    harmonic of the 16-row MCU grid, aliased into the band, for rows decoded at 1/row_scale
+    (DCT-domain scaling keeps the grid: 8 stored rows become 8 / row_scale). Empty for other
+    formats."""
+    if fmt.upper() not in ("JPEG", "MPO") or not row_scale > 0:
+        return ()
+    base = row_scale / JPEG_MCU_ROWS
+    out = set()
+    for k in range(1, JPEG_MCU_ROWS + 1):
+        f = (k * base) % 1.0
+        f = min(f, 1.0 - f)
+        if f > 1e-9:
+            out.add(round(f, 9))
+    return tuple(sorted(out))
+
+
+def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frames: int,
+                 grid_cpr: tuple[float, ...] = ()) -> ScreenResult:
     """Whether one plane's tracks hold ``min_frames`` frames significant at ``false_prob``.
 
     Parameters
@@ -78,6 +100,9 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
         Per-frame false-pass probability in (0, 1); None passes every plane (screen off).
     min_frames : int
         Frames (>= 1) one track must hold above the threshold.
+    grid_cpr : tuple of float
+        Frequencies of the source's block grid (`jpeg_grid_cpr`): a frame whose peak lies
+        within half a frequency bin of one of them is not counted.
 
     Returns
     -------
@@ -89,6 +114,9 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
     for track in analysis.tracks:
         thr = peak_threshold(false_prob, n_bins=track.n_bins, n_blocks=track.n_blocks)
         hits = track.snr > thr
+        if grid_cpr:
+            off = np.min(np.abs(track.freq_cpr[:, None] - np.asarray(grid_cpr)[None, :]), axis=1)
+            hits &= off > 0.5 / track.window_rows
         count = int(np.count_nonzero(hits))
         if count > best:
             best, best_w = count, track.window_rows

@@ -42,6 +42,38 @@ def test_pwm_light_on_a_photo_is_cleared_by_the_first_stage(make_led_image, pwm_
     assert v.evidence["candidates"][0]["sweep"] is None
 
 
+def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
+    """A 12 MP JPEG decoded at 3/8 scale shows its 8x8 block grid as a column-coherent
+    3-row period; the first stage must not take it for LED stripes (it did: every such
+    photo paid the whole pattern search, about 1 s)."""
+    from lishield_guard.decode import decode
+    from lishield_guard.detect import _analyse
+    from lishield_guard.screen import jpeg_grid_cpr
+
+    rng = np.random.default_rng(12)
+    big = cv2.resize(data.astronaut(), (4032, 3024), interpolation=cv2.INTER_CUBIC)
+    big = np.clip(big + rng.normal(0, 2.0, big.shape), 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", big[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    v = detect(buf.tobytes())
+    assert v.status == "clean"
+    assert all(c["stage"] == FIRST_STAGE for c in v.evidence["candidates"]), \
+        [(c["axis"], c["reason"]) for c in v.evidence["candidates"]]
+    # the grid is what the screen would otherwise count
+    cfg = default_config()
+    dec = decode(buf.tobytes(), limits=cfg.limits, max_rows=cfg.detector.max_decode_rows)
+    grid = jpeg_grid_cpr(dec.format, dec.row_scale)
+    assert dec.row_scale == pytest.approx(8 / 3) and min(abs(g - 1 / 3) for g in grid) < 1e-6
+    planes = [_analyse(np.ascontiguousarray(dec.rgb()[:, :, i]), axis, cfg, dec.row_scale)
+              for i in range(3) for axis in (0, 1)]
+    det = cfg.detector
+    assert any(screen_plane(pa, false_prob=det.screen_false_prob,
+                            min_frames=det.screen_min_frames).passed for pa in planes)
+    assert not any(screen_plane(pa, false_prob=det.screen_false_prob,
+                                min_frames=det.screen_min_frames, grid_cpr=grid).passed
+                   for pa in planes)
+
+
 def test_screen_counts_frames_above_its_own_threshold():
     snr = np.array([0.0, 50.0, 60.0, 1.0])
     track = Track(64, 0.01, 0.4, np.full(4, 0.1), snr, 1e9, n_bins=20.0, n_blocks=8)
