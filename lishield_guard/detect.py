@@ -34,6 +34,8 @@ __all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded",
            "sweep_fits", "sweep_passes", "tone_rule"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
+MIN_ACROSS = 64  # fewer pixels across the lines cannot fill 8 column blocks of 8 pixels: the
+#                  column-coherence tests that tell LED stripes from texture have nothing to use
 FIT_STARTS = 3  # best grid periods per spec channel refined with the exact capture model
 FIT_SUB_BLOCKS = 4  # sweep and fit weight n_col_blocks x this many column sub-blocks
 MIN_SLOTS_IN_FRAME = 2.0  # sweep/fit periods must leave two slots (two tones) in the frame:
@@ -600,6 +602,16 @@ def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list
     return best
 
 
+def _too_small(shape: tuple[int, ...], axis: int) -> str | None:
+    """Why the luma plane of ``shape`` cannot be analysed along ``axis`` (None: it can)."""
+    lines, across = shape[axis], shape[1 - axis]
+    if lines < MIN_ROWS:
+        return f"only {lines} < {MIN_ROWS} lines"
+    if across < MIN_ACROSS:
+        return f"lines only {across} < {MIN_ACROSS} pixels long"
+    return None
+
+
 def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
     """Every plane on every configured axis (for calibration sweeps; `detect` is lazier)."""
     det = config.detector
@@ -607,8 +619,8 @@ def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
     skipped = []
     has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
     for axis in (0, 1) if det.orientations == "both" else (0,):
-        if decoded.luma.shape[axis] < MIN_ROWS:
-            skipped.append(f"{AXIS_NAMES[axis]}: only {decoded.luma.shape[axis]} lines")
+        if (why := _too_small(decoded.luma.shape, axis)) is not None:
+            skipped.append(f"{AXIS_NAMES[axis]}: {why}")
             continue
         planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
         if has_rgb and decoded.is_color:
@@ -638,7 +650,8 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
         if not any(p.specs for p in config.policies):
             why = "no policy configured: nothing to look for"
         else:
-            why = (f"image too small: fewer than {MIN_ROWS} lines on every analysed axis ("
+            why = (f"image too small: fewer than {MIN_ROWS} lines of at least {MIN_ACROSS} "
+                   f"pixels on every analysed axis ("
                    + "; ".join(skipped) + ")" if skipped else "nothing analysable")
         return Verdict(False, None, 0, config.detector.min_tones,
                        evidence={"reason": why, "candidates": []},
@@ -676,8 +689,8 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     candidates: list[tuple[str, str, SpecMatch]] = []
     for axis in axes:
         name = AXIS_NAMES[axis]
-        if decoded.luma.shape[axis] < MIN_ROWS:
-            skipped.append(f"{name}: only {decoded.luma.shape[axis]} < {MIN_ROWS} lines")
+        if (why := _too_small(decoded.luma.shape, axis)) is not None:
+            skipped.append(f"{name}: {why}")
             continue
         with timer("profile_luma"):
             planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}

@@ -5,8 +5,9 @@ A verdict has one of three statuses (`Verdict.status`):
 - ``"protected"``: a configured policy's barcode was found;
 - ``"clean"``: the detector analysed the image and found none;
 - ``"undetermined"``: the detector could not look (``undetermined`` holds the reason), e.g. an
-  image with fewer lines than the detector needs on every analysed axis (default profile: 64,
-  `lishield_guard.detect.MIN_ROWS`), or smaller than the paper profile's block grid. An
+  image with no analysable axis (default profile: at least 64 lines, each at least 64 pixels
+  long, `lishield_guard.detect.MIN_ROWS` and `MIN_ACROSS`: a 64x48 thumbnail is
+  undetermined), or smaller than the paper profile's block grid. An
   undetermined verdict is never "clean": callers that must fail closed check ``status``.
 """
 

@@ -42,7 +42,8 @@ def _cli(*args, timeout=SUBPROCESS_TIMEOUT_S, **kw) -> subprocess.CompletedProce
 # --------------------------------------------------------------------- 3: undetermined
 
 
-@pytest.mark.parametrize("shape", [(48, 48), (63, 63), (5, 5), (40, 60)])
+@pytest.mark.parametrize("shape", [(48, 48), (63, 63), (5, 5), (40, 60), (48, 64), (64, 48),
+                                   (2000, 40)])
 def test_too_small_image_is_undetermined_not_clean(shape):
     v = lishield_guard.detect(png_bytes(*shape))
     assert v.status == "undetermined"
