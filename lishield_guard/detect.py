@@ -233,12 +233,14 @@ def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
 
 
 def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
-                 grid_cpr: tuple[float, ...] = ()) -> list[tuple[str, SpecMatch]]:
+                 grid_cpr: tuple[float, ...] = (), screens: dict | None = None
+                 ) -> list[tuple[str, SpecMatch]]:
     """Match every spec whose planes are available on one axis: tone tracks (confirmed by an
     exact fit of the spec when ``tone_min_fit_gain`` is set), then folding, then the period
-    sweep (computed once per axis for all specs, when first needed)."""
+    sweep (computed once per axis for all specs, when first needed). ``screens``: first-stage
+    results already computed for some of the planes (`screen_specs`), filled in place."""
     out = []
-    screens, screened = screen_specs(planes, specs, det, grid_cpr)
+    screens, screened = screen_specs(planes, specs, det, grid_cpr, screens)
 
     @cache
     def periods() -> list[float]:
@@ -322,14 +324,18 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
 
 
 def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
-                 grid_cpr: tuple[float, ...] = ()) -> tuple[dict, list]:
+                 grid_cpr: tuple[float, ...] = (), screens: dict | None = None
+                 ) -> tuple[dict, list]:
     """The first stage on one axis: `screen.screen_plane` of every plane (by ``id``) and the
     (policy id, spec) pairs with a plane that passed, in order. Detection and calibration
     (`sweep_fits`, `fold_fits`, `calibrate.screened_candidates`) search the same specs with
-    the same candidate periods. ``grid_cpr``: the source's JPEG grid (`screen.jpeg_grid_cpr`)."""
-    screens = {id(pa): screen_plane(pa, false_prob=det.screen_false_prob,
-                                    min_frames=det.screen_min_frames, grid_cpr=grid_cpr)
-               for pa in planes.values()}
+    the same candidate periods. ``grid_cpr``: the source's JPEG grid (`screen.jpeg_grid_cpr`);
+    ``screens``: results of planes screened before (not screened again), filled in place."""
+    screens = {} if screens is None else screens
+    for pa in planes.values():
+        if id(pa) not in screens:
+            screens[id(pa)] = screen_plane(pa, false_prob=det.screen_false_prob,
+                                           min_frames=det.screen_min_frames, grid_cpr=grid_cpr)
     return screens, [(pid, spec) for pid, spec in specs
                      if _screen_passes(spec_planes(spec, planes), screens)]
 
@@ -696,7 +702,8 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
             planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
         skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
         with timer("match"):
-            found = _decide_axis(planes, mono, det, grid)
+            screens: dict = {}  # luma is screened once, for the mono and the RGB specs
+            found = _decide_axis(planes, mono, det, grid, screens)
         if rgb and not any(m.protected for _, m in found):
             # Colour planes whenever luma is not decisive: an RGB barcode's channels can
             # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
@@ -707,7 +714,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
                                                decoded.row_scale)
                                    for i, c in enumerate("RGB")})
             with timer("match"):
-                found += _decide_axis(planes, rgb, det, grid)
+                found += _decide_axis(planes, rgb, det, grid, screens)
         elif rgb:
             skipped.append(f"{name}: colour planes (luma verdict certain)")
         candidates += [(name, pid, m) for pid, m in found]
