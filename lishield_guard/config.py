@@ -142,6 +142,13 @@ class DetectorConfig:
         that the tone tracks count also passes the screen). None turns the screen off.
     screen_min_frames : int
         Frames a track must hold above the screen's threshold (>= 1).
+    screen_partial_false_prob : float or None
+        First stage, for a light covering part of the frame: a plane that fails the test on
+        all its column blocks still passes when one half of its column sub-blocks (left,
+        centre or right) has ``screen_partial_min_frames`` frames significant at this
+        per-frame probability, shared by the three halves. None: halves are not tested.
+    screen_partial_min_frames : int
+        Frames a track of one half must hold above the halves' threshold (>= 1).
     fast_decode : bool
         Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
         False decodes full colour with Pillow first (the reference the fast path is measured
@@ -193,6 +200,8 @@ class DetectorConfig:
     tone_min_fit_gain: float = 0.5
     screen_false_prob: float | None = 0.01
     screen_min_frames: int = 2
+    screen_partial_false_prob: float | None = 1e-3
+    screen_partial_min_frames: int = 3
     fast_decode: bool = True
     max_decode_rows: int = 768
 
@@ -241,9 +250,15 @@ class DetectorConfig:
         if self.screen_false_prob is not None and not 0 < self.screen_false_prob < 1:
             raise ConfigError(f"need 0 < screen_false_prob < 1 (or None: no screen), got "
                               f"screen_false_prob={self.screen_false_prob!r}")
-        if int(self.screen_min_frames) != self.screen_min_frames or self.screen_min_frames < 1:
-            raise ConfigError(f"need integer screen_min_frames >= 1, got "
-                              f"screen_min_frames={self.screen_min_frames!r}")
+        if (self.screen_partial_false_prob is not None
+                and not 0 < self.screen_partial_false_prob < 1):
+            raise ConfigError(f"need 0 < screen_partial_false_prob < 1 (or None: halves not "
+                              f"tested), got screen_partial_false_prob="
+                              f"{self.screen_partial_false_prob!r}")
+        for name in ("screen_min_frames", "screen_partial_min_frames"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")
         if not self.fit_max_leak_rgb >= 0:
             raise ConfigError(f"need fit_max_leak_rgb >= 0 (0: off), got "
                               f"{self.fit_max_leak_rgb!r}")

@@ -268,7 +268,11 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
             else:
                 why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
                        f"track above the p={best.false_prob:g} noise threshold, "
-                       f"{det.screen_min_frames} needed)")
+                       f"{det.screen_min_frames} needed"
+                       + ("" if det.screen_partial_false_prob is None else
+                          f"; in any half of the columns, {best.part_frames} at p="
+                          f"{det.screen_partial_false_prob:g}, "
+                          f"{det.screen_partial_min_frames} needed") + ")")
             m = replace(m, protected=False, stage="first stage",
                         reason=f"first stage: {why}; pattern search skipped")
             out.append((pid, m))
@@ -332,10 +336,15 @@ def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
     the same candidate periods. ``grid_cpr``: the source's JPEG grid (`screen.jpeg_grid_cpr`);
     ``screens``: results of planes screened before (not screened again), filled in place."""
     screens = {} if screens is None else screens
-    for pa in planes.values():
+    for name, pa in planes.items():
         if id(pa) not in screens:
-            screens[id(pa)] = screen_plane(pa, false_prob=det.screen_false_prob,
-                                           min_frames=det.screen_min_frames, grid_cpr=grid_cpr)
+            # halves of the columns are tested in luma only: a light covering part of the
+            # frame shows there whatever it plays, and colour planes would triple the cost
+            screens[id(pa)] = screen_plane(
+                pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames,
+                grid_cpr=grid_cpr, partial_false_prob=(det.screen_partial_false_prob
+                                                       if name == "L" else None),
+                partial_min_frames=det.screen_partial_min_frames)
     return screens, [(pid, spec) for pid, spec in specs
                      if _screen_passes(spec_planes(spec, planes), screens)]
 

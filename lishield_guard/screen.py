@@ -3,15 +3,27 @@
 An ordinary photo under steady light has no row signal that every column block shares. The
 short-time tracks (`spectrum.analyse_profiles`) already test each frame's strongest peak
 against the residual between column blocks; under noise a frame passes at threshold
-``peak_threshold(p)`` with probability p. The screen asks for ``min_frames`` such frames in
-one track at a loose p (0.01 by default, against 1e-5 for the tone tracks), so:
+``peak_threshold(p)`` with probability p. At a loose p (0.01 by default, against 1e-5 for the
+tone tracks) a plane passes on any of three pieces of evidence, tried cheapest first:
 
-- a plane that fails the screen has no frame that the tone tracks could count, and the
-  expensive stages (folding, the period sweep, the exact fit) are skipped for it;
-- the false-pass probability of a plane of pure noise is about
-  1 - (1 - p)^(n_frames) per track for one frame: the screen is meant to be loose, and its
-  miss rate on barcodes is what is measured (`tests/core/test_screen.py`, and
-  ``lishield-guard bench`` reports the fraction of clean photos it clears).
+1. **one track**: ``min_frames`` frames of one window length above the threshold;
+2. **two windows**: frames above the threshold in two window lengths whose peaks agree within
+   one frequency bin of the longer window (a faint stripe seen once by each of two windows:
+   two looks at one frequency, where noise peaks fall anywhere in the band);
+3. **one half**: a light that covers part of the frame (a lamp lighting one side of the scene)
+   puts its stripes in some column blocks only, and the blocks it misses raise the residual
+   the peaks are tested against (with half the blocks lit, the ratio stays near
+   n_blocks - 1 however deep the stripes); scene texture confined to part of the frame does
+   the same to a faint light that covers all of it. So each half of the columns (left,
+   centre, right; 8 of 16 sub-blocks) is tested on its own (`spectrum.part_tracks`), at a
+   stricter ``partial_false_prob`` shared by the three halves and ``partial_min_frames``
+   frames.
+
+A plane that fails all three has no frame the tone tracks could count, and the expensive stages
+(folding, the period sweep, the exact fit) are skipped for it. The screen is meant to be loose:
+its miss rate on barcodes and its pass rate on real photos are what is measured
+(`tests/core/test_screen.py`; ``lishield-guard bench`` reports the fraction of clean photos it
+clears).
 
 A JPEG's own block grid (8x8 DCT blocks, 16-row MCUs with 4:2:0 chroma) is a periodic,
 column-coherent pattern too: frames whose peak sits on a harmonic of that grid
@@ -31,9 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, steady_rho
-from lishield_guard.spectrum import PlaneAnalysis, peak_threshold
+from lishield_guard.spectrum import PlaneAnalysis, Track, part_tracks, peak_threshold
 
-__all__ = ["ScreenResult", "jpeg_grid_cpr", "screen_plane"]
+__all__ = ["PARTS", "ScreenResult", "jpeg_grid_cpr", "screen_plane"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +65,12 @@ class ScreenResult:
     steady_rho : float or None
         How well one steady square wave fits the rows, when the stripes were tested (the
         plane had enough frames); the plane is cleared at `LOOKALIKE_DOMINANT_RHO` or above.
+    via : str or None
+        The evidence the stripes passed on: ``"one track"``, ``"two windows"``, or
+        ``"left half"``, ``"centre half"``, ``"right half"``; None when there were none.
+    part_frames : int
+        Most frames above the halves' threshold in any track of any half (0 when the halves
+        were not tested).
     """
 
     passed: bool
@@ -60,11 +78,14 @@ class ScreenResult:
     window_rows: int
     false_prob: float
     steady_rho: float | None = None
+    via: str | None = None
+    part_frames: int = 0
 
     def to_dict(self) -> dict:
         """JSON-ready fields."""
         return {"passed": self.passed, "frames": self.frames, "window_rows": self.window_rows,
-                "false_prob": self.false_prob, "steady_rho": self.steady_rho}
+                "false_prob": self.false_prob, "steady_rho": self.steady_rho,
+                "via": self.via, "part_frames": self.part_frames}
 
 
 STEADY_WINDOW_CYCLES = 4.0  # the steady test high-passes at 1.5 cycles per this many stripes
@@ -88,9 +109,82 @@ def jpeg_grid_cpr(fmt: str, row_scale: float) -> tuple[float, ...]:
     return tuple(sorted(out))
 
 
+def _hits(track: Track, false_prob: float, grid_cpr: tuple[float, ...]) -> np.ndarray:
+    """Frames of ``track`` above the threshold at ``false_prob`` whose peak is off the grid."""
+    hits = track.snr > peak_threshold(false_prob, n_bins=track.n_bins, n_blocks=track.n_blocks)
+    if grid_cpr:
+        off = np.min(np.abs(track.freq_cpr[:, None] - np.asarray(grid_cpr)[None, :]), axis=1)
+        hits &= off > 0.5 / track.window_rows
+    return hits
+
+
+def _count(tracks: tuple[Track, ...], false_prob: float, grid_cpr: tuple[float, ...]
+           ) -> tuple[int, int, float]:
+    """Most frames above the threshold at ``false_prob`` in any one track, that track's window
+    length and its hits' median frequency (cycles per row); grid frequencies do not count."""
+    best, best_w, best_f = 0, 0, 0.0
+    for track in tracks:
+        hits = _hits(track, false_prob, grid_cpr)
+        count = int(np.count_nonzero(hits))
+        if count > best:
+            best, best_w = count, track.window_rows
+            best_f = float(np.median(track.freq_cpr[hits]))
+    return best, best_w, best_f
+
+
+def _coincident(tracks: tuple[Track, ...], false_prob: float, grid_cpr: tuple[float, ...]
+                ) -> float | None:
+    """A frequency (cycles per row) where frames above the threshold of two tracks of
+    different window lengths agree within one bin of the longer window; None when none do."""
+    found = [(t.window_rows, t.freq_cpr[_hits(t, false_prob, grid_cpr)]) for t in tracks]
+    found = [(w, f) for w, f in found if f.size]
+    for i, (w_a, f_a) in enumerate(found):
+        for w_b, f_b in found[i + 1:]:
+            gap = np.abs(f_a[:, None] - f_b[None, :])
+            if gap.min() <= 1.0 / max(w_a, w_b):
+                a, b = np.unravel_index(int(gap.argmin()), gap.shape)
+                return float(0.5 * (f_a[a] + f_b[b]))
+    return None
+
+
+PARTS = ("left", "centre", "right")
+PART_PAD_FACTOR = 4  # counting frames needs no fine peak placement (`frequency_tracks`)
+
+
+PART_BLOCKS = 16  # column sub-blocks the halves are drawn from (8 per half: as many
+#                   degrees of freedom as the test on all blocks)
+
+
+def _best_part(analysis: PlaneAnalysis, false_prob: float, grid_cpr: tuple[float, ...]
+               ) -> tuple[str | None, int, int, float]:
+    """The half of the column sub-blocks with the most frames above the threshold at
+    ``false_prob`` / 3 (Bonferroni over the three halves): (part, frames, window, frequency)."""
+    fine = analysis.fit_blocks
+    if fine is None or fine.shape[0] < PART_BLOCKS:
+        return None, 0, 0, 0.0
+    group = fine.shape[0] // PART_BLOCKS  # adjacent sub-blocks averaged into PART_BLOCKS
+    blocks = fine[: group * PART_BLOCKS].reshape(PART_BLOCKS, group, -1).mean(axis=1)
+    h, q = PART_BLOCKS // 2, PART_BLOCKS // 4
+    parts = dict(zip(PARTS, (slice(0, h), slice(q, q + h), slice(h, PART_BLOCKS)),
+                     strict=True))
+    tracks = part_tracks(blocks, parts, band_cpr=analysis.band_cpr, false_prob=false_prob,
+                         pad_factor=PART_PAD_FACTOR)
+    best = (None, 0, 0, 0.0)
+    for name in PARTS:
+        count, w, f = _count(tracks[name], false_prob / len(PARTS), grid_cpr)
+        if count > best[1]:
+            best = (name, count, w, f)
+    return best
+
+
 def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frames: int,
-                 grid_cpr: tuple[float, ...] = ()) -> ScreenResult:
-    """Whether one plane's tracks hold ``min_frames`` frames significant at ``false_prob``.
+                 grid_cpr: tuple[float, ...] = (), partial_false_prob: float | None = None,
+                 partial_min_frames: int = 3) -> ScreenResult:
+    """Whether one plane has column-coherent stripes worth the pattern search (see module):
+    ``min_frames`` frames of one track, or two windows agreeing, significant at
+    ``false_prob``; or ``partial_min_frames`` frames of one half of the columns significant at
+    ``partial_false_prob``. Stripes that one steady square wave explains are cleared all the
+    same.
 
     Parameters
     ----------
@@ -103,6 +197,11 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
     grid_cpr : tuple of float
         Frequencies of the source's block grid (`jpeg_grid_cpr`): a frame whose peak lies
         within half a frequency bin of one of them is not counted.
+    partial_false_prob : float or None
+        Per-frame false-pass probability of the test on halves, shared by the three halves;
+        None: halves are not tested.
+    partial_min_frames : int
+        Frames (>= 1) one track of one half must hold above its threshold.
 
     Returns
     -------
@@ -110,21 +209,20 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
     """
     if false_prob is None:
         return ScreenResult(True, -1, 0, 0.0)
-    best, best_w, best_f = 0, 0, 0.0
-    for track in analysis.tracks:
-        thr = peak_threshold(false_prob, n_bins=track.n_bins, n_blocks=track.n_blocks)
-        hits = track.snr > thr
-        if grid_cpr:
-            off = np.min(np.abs(track.freq_cpr[:, None] - np.asarray(grid_cpr)[None, :]), axis=1)
-            hits &= off > 0.5 / track.window_rows
-        count = int(np.count_nonzero(hits))
-        if count > best:
-            best, best_w = count, track.window_rows
-            best_f = float(np.median(track.freq_cpr[hits]))
+    best, best_w, freq = _count(analysis.tracks, false_prob, grid_cpr)
+    via, part_frames = "one track", 0
     if best < min_frames:
-        return ScreenResult(False, best, best_w, float(false_prob))
+        freq = _coincident(analysis.tracks, false_prob, grid_cpr)
+        via = "two windows"
+    if best < min_frames and freq is None:
+        part = None
+        if partial_false_prob is not None:
+            part, part_frames, _, freq = _best_part(analysis, partial_false_prob, grid_cpr)
+        if part is None or part_frames < partial_min_frames:
+            return ScreenResult(False, best, best_w, float(false_prob), part_frames=part_frames)
+        via = f"{part} half"
     steady = None
-    if analysis.fit_blocks is not None and best_f > 0:
-        steady = steady_rho(analysis.fit_blocks, STEADY_WINDOW_CYCLES / best_f)
+    if analysis.fit_blocks is not None and freq > 0:
+        steady = steady_rho(analysis.fit_blocks, STEADY_WINDOW_CYCLES / freq)
     passed = steady is None or steady < LOOKALIKE_DOMINANT_RHO
-    return ScreenResult(passed, best, best_w, float(false_prob), steady)
+    return ScreenResult(passed, best, best_w, float(false_prob), steady, via, part_frames)

@@ -32,7 +32,7 @@ from scipy.ndimage import uniform_filter1d
 
 from lishield_guard.profile import detrend_profiles
 
-__all__ = ["PlaneAnalysis", "Track", "analyse_profiles", "peak_threshold"]
+__all__ = ["PlaneAnalysis", "Track", "analyse_profiles", "frequency_tracks", "part_tracks", "peak_threshold"]
 
 WINDOW_ROWS = (32, 64, 128, 256, 512)  # short windows see one symbol, long ones resolve tones
 HOP_FRACTION = 0.25
@@ -97,7 +97,8 @@ class PlaneAnalysis:
     ``common`` is the common log-contrast row signal (n_rows,), used by pattern folding;
     ``blocks`` the log contrast of each usable column block (n_blocks, n_rows), used by the
     period sweep's coherence test; ``fine_blocks`` the same for narrower sub-blocks, used by
-    the exact-model fit to weight the columns by how quiet their scene is.
+    the exact-model fit to weight the columns by how quiet their scene is; ``band_cpr`` the
+    stripe frequencies the tracks searched, cycles per row.
     """
 
     n_rows: int
@@ -107,6 +108,7 @@ class PlaneAnalysis:
     common: np.ndarray | None = None
     blocks: np.ndarray | None = None
     fine_blocks: np.ndarray | None = None
+    band_cpr: tuple[float, float] = (0.0, 0.45)
 
     @property
     def fit_blocks(self) -> np.ndarray | None:
@@ -165,10 +167,47 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
                              ("fewer than 2 usable column blocks: no coherence test possible",))
     contrast, _ = detrend_profiles(profiles[keep], sigma_rows=trend_sigma_rows)
     nb = contrast.shape[0]
-    lo, hi = band_cpr
-    hi = min(hi, 0.45)
+    band = (band_cpr[0], min(band_cpr[1], 0.45))
     # in log contrast the LED term is the same in every block (gain 1): the mean is its
     # estimate and the residual holds only what blocks do not share
+    common, tracks = frequency_tracks(contrast, band_cpr=band, false_prob=false_prob)
+    fine = None
+    if fine_profiles is not None:
+        fine_keep, _ = _usable_blocks(fine_profiles, full_scale)
+        if fine_keep.sum() >= 2:
+            fine = detrend_profiles(fine_profiles[fine_keep],
+                                    sigma_rows=trend_sigma_rows)[0].astype(np.float32)
+    return PlaneAnalysis(n_rows, nb, tracks, tuple(skipped), common.astype(np.float32),
+                         contrast.astype(np.float32), fine, band)
+
+
+def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], false_prob: float,
+                     pad_factor: int = PAD_FACTOR) -> tuple[np.ndarray, tuple[Track, ...]]:
+    """The common row signal of some column blocks and its tracks, one per window length.
+
+    Parameters
+    ----------
+    contrast : ndarray of shape (n_blocks, n_rows)
+        Detrended log contrast of at least 2 column blocks.
+    band_cpr : (float, float)
+        Lowest and highest stripe frequency searched, cycles per row (the top is capped at
+        0.45).
+    false_prob : float
+        Probability that a frame of pure noise passes the significance test.
+    pad_factor : int
+        Zero padding of each frame's FFT (a power of 2): 8 places peaks to 1/16 of a bin
+        for the pattern search; 2 loses at most about 0.4 dB of a peak's power, enough to
+        count significant frames.
+
+    Returns
+    -------
+    common : ndarray of shape (n_rows,)
+        Mean over the blocks: the estimate of the LED term, which is the same in every block.
+    tracks : tuple of Track
+        One per window length of `WINDOW_ROWS` that fits the rows and the band.
+    """
+    nb, n_rows = contrast.shape
+    lo, hi = band_cpr[0], min(band_cpr[1], 0.45)
     common = contrast.mean(axis=0)
     resid = contrast - common
     noise_scale = 1.0 / ((nb - 1) * nb)
@@ -179,15 +218,85 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         t_lo = max(lo, MIN_CYCLES / w)
         if t_lo >= hi:
             continue
-        tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale))
-    fine = None
-    if fine_profiles is not None:
-        fine_keep, _ = _usable_blocks(fine_profiles, full_scale)
-        if fine_keep.sum() >= 2:
-            fine = detrend_profiles(fine_profiles[fine_keep],
-                                    sigma_rows=trend_sigma_rows)[0].astype(np.float32)
-    return PlaneAnalysis(n_rows, nb, tuple(tracks), tuple(skipped), common.astype(np.float32),
-                         contrast.astype(np.float32), fine)
+        tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale, pad_factor))
+    return common, tuple(tracks)
+
+
+def part_tracks(blocks: np.ndarray, parts: dict[str, slice], *, band_cpr: tuple[float, float],
+                false_prob: float, pad_factor: int = 2) -> dict[str, tuple[Track, ...]]:
+    """Tracks of the common signal of several subsets of column blocks at once.
+
+    Each window's frames are transformed once per block; a subset's common spectrum is the
+    mean of its blocks' spectra (the transform is linear) and its noise power the spread of
+    its blocks' spectra about that mean (on the unpadded grid, smoothed over 3 bins, as in
+    `frequency_tracks`), so the subsets cost little more than one of them. Peaks are not
+    interpolated: enough to count significant frames, not to place tones.
+
+    Parameters
+    ----------
+    blocks : ndarray of shape (n_blocks, n_rows)
+        Detrended log contrast of column blocks.
+    parts : dict of str to slice
+        Named contiguous subsets of the blocks, each of at least 2 blocks.
+    band_cpr, false_prob
+        As for `frequency_tracks`.
+    pad_factor : int
+        Zero padding of each frame's FFT; 2 loses at most about 0.4 dB of a peak's power.
+
+    Returns
+    -------
+    dict of str to tuple of Track
+        The tracks of each part, one per window length that fits.
+    """
+    n_blocks, n_rows = blocks.shape
+    lo, hi = band_cpr[0], min(band_cpr[1], 0.45)
+    bounds = {name: cols.indices(n_blocks)[:2] for name, cols in parts.items()}
+    edges = sorted({e for ab in bounds.values() for e in ab})
+    out: dict[str, list[Track]] = {name: [] for name in parts}
+    for w in WINDOW_ROWS:
+        if w > n_rows:
+            break
+        t_lo = max(lo, MIN_CYCLES / w)
+        if t_lo >= hi:
+            continue
+        hop = max(1, int(w * HOP_FRACTION))
+        nfft = pad_factor * w
+        fr = _frames(blocks, w, hop)
+        fr = ((fr - fr.mean(axis=-1, keepdims=True)) * np.hanning(w)).astype(np.float32)
+        k_lo, k_hi = int(np.ceil(t_lo * nfft)), int(np.floor(hi * nfft))
+        top = min(k_hi + 2 * pad_factor, nfft // 2 + 1)
+        spec = scipy.fft.rfft(fr, nfft, axis=-1)[..., :top]
+        power = (spec.real ** 2 + spec.imag ** 2)[..., ::pad_factor]  # the unpadded grid
+        # sums over the stretches between part edges; a part's sum adds its stretches
+        pieces = {(a, b): (spec[a:b].sum(axis=0), power[a:b].sum(axis=0))
+                  for a, b in zip(edges[:-1], edges[1:], strict=False)}
+        n_bins = (k_hi - k_lo) / pad_factor
+        freqs = np.arange(top) / nfft
+        grid_mask = np.zeros(top, dtype=bool)
+        for g in JPEG_GRID_CPR:
+            grid_mask |= np.abs(freqs - g) <= max(JPEG_MASK_REL * g, 1.0 / w)
+        for name, (a, b) in bounds.items():
+            nb = b - a
+            own = [v for (pa, pb), v in pieces.items() if a <= pa and pb <= b]
+            mean = sum(v[0] for v in own) / nb
+            common = (mean.real ** 2 + mean.imag ** 2).astype(np.float64)
+            spread = sum(v[1] for v in own) - nb * common[..., ::pad_factor]
+            noise = uniform_filter1d(np.maximum(spread, 0.0), size=3, axis=-1,
+                                     mode="nearest") / ((nb - 1) * nb)
+            common[:, grid_mask] = 0.0
+            k = common[:, k_lo: k_hi + 1].argmax(axis=1) + k_lo
+            rows = np.arange(common.shape[0])
+            peak = common[rows, k]
+            edge = (k <= k_lo) | (k >= k_hi)
+            pos = k / pad_factor
+            i0 = np.minimum(pos.astype(int), noise.shape[1] - 2)
+            frac = pos - i0
+            floor = noise[rows, i0] * (1.0 - frac) + noise[rows, i0 + 1] * frac
+            snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(floor, 1e-300))
+            thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=nb)
+            out[name].append(Track(w, float(t_lo), float(hi), k / nfft, snr, thr,
+                                   float(n_bins), int(nb)))
+    return {name: tuple(tracks) for name, tracks in out.items()}
 
 
 def _frames(x: np.ndarray, w: int, hop: int) -> np.ndarray:
@@ -205,17 +314,17 @@ def peak_threshold(false_prob: float, *, n_bins: float, n_blocks: int) -> float:
 
 
 def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
-           false_prob: float, noise_scale: float) -> Track:
+           false_prob: float, noise_scale: float, pad_factor: int = PAD_FACTOR) -> Track:
     hop = max(1, int(w * HOP_FRACTION))
     win = np.hanning(w)
-    nfft = PAD_FACTOR * w
+    nfft = pad_factor * w
     fc = _frames(common, w, hop)
     fc = (fc - fc.mean(axis=-1, keepdims=True)) * win
     spec = np.abs(scipy.fft.rfft(fc.astype(np.float32), nfft, axis=-1)).astype(np.float64) ** 2
     fr = _frames(resid, w, hop)
     fr = ((fr - fr.mean(axis=-1, keepdims=True)) * win).astype(np.float32)
     # the noise floor is smooth: estimated on the unpadded grid (3 bins, as wide as the
-    # padded grid's 2 PAD_FACTOR + 1) and interpolated onto the padded one
+    # padded grid's 2 pad_factor + 1) and interpolated onto the padded one
     coarse = (np.abs(scipy.fft.rfft(fr, w, axis=-1)) ** 2).sum(axis=0) * (noise_scale * 1.0)
     coarse = uniform_filter1d(coarse.astype(np.float64), size=3, axis=-1, mode="nearest")
     freqs = np.arange(spec.shape[1]) / nfft
@@ -238,9 +347,9 @@ def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
         delta = np.where(den < 0, 0.5 * (a - c) / np.where(den < 0, den, -1.0), 0.0)
     delta = np.clip(delta, -0.5, 0.5)
     freq = (k + delta) / nfft
-    n_bins = (k_hi - k_lo) / PAD_FACTOR
+    n_bins = (k_hi - k_lo) / pad_factor
     nb = resid.shape[0]
-    pos = k / PAD_FACTOR  # the peak bin on the unpadded grid (linear interpolation)
+    pos = k / pad_factor  # the peak bin on the unpadded grid (linear interpolation)
     i0 = np.minimum(pos.astype(int), coarse.shape[1] - 2)
     frac = pos - i0
     noise = coarse[rows, i0] * (1.0 - frac) + coarse[rows, i0 + 1] * frac

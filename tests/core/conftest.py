@@ -23,7 +23,8 @@ def make_led_image(rng):
     def make(spec: BarcodeSpec | None, *, scene: np.ndarray | None = None, n_rows: int = 1080,
              n_cols: int = 1440, row_rate_hz: float = 30_000.0, exposure_s: float = 1 / 4000,
              switching_hz: float | None = None, ambient: float = 1.0, jpeg: int | None = 90,
-             flicker: np.ndarray | None = None, phase: str = "restart"):
+             flicker: np.ndarray | None = None, phase: str = "restart",
+             lit_fraction: float = 1.0):
         if scene is None:
             from skimage import data
 
@@ -37,7 +38,10 @@ def make_led_image(rng):
                              t0_s=float(rng.random() * 0.01), phase=phase)
             led = (np.repeat(w["W"][:, None], 3, 1) if "W" in w
                    else np.stack([w["R"], w["G"], w["B"]], 1))
-        img = lin * (ambient * 0.5 + led)[:, None, :].astype(np.float32)
+        # the LED lights the right-hand lit_fraction of the columns, ambient all of them
+        width = lin.shape[1]
+        lit = (np.arange(width) >= (1.0 - lit_fraction) * width).astype(np.float32)
+        img = lin * (ambient * 0.5 + led[:, None, :] * lit[None, :, None]).astype(np.float32)
         img = img / np.percentile(img, 99.5) * 0.85
         img = np.clip(img + rng.normal(0, 0.002, img.shape), 0, 1) ** (1 / 2.2)
         img8 = (img * 255 + 0.5).astype(np.uint8)

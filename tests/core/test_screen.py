@@ -87,6 +87,46 @@ def test_screen_counts_frames_above_its_own_threshold():
     assert screen_plane(pa, false_prob=None, min_frames=99).passed  # screen off
 
 
+def test_two_windows_agreeing_on_one_frequency_pass():
+    """One frame above the threshold in each of two window lengths is enough when both peaks
+    sit at one frequency (two looks at one stripe); at unrelated frequencies it is noise."""
+    def track(w, freq):
+        snr = np.array([0.0, 1e3, 0.0])
+        return Track(w, 0.01, 0.4, np.array([0.2, freq, 0.3]), snr, 1e9, n_bins=20.0,
+                     n_blocks=8)
+
+    agree = PlaneAnalysis(512, 8, (track(128, 0.1), track(256, 0.1 + 0.5 / 256)), ())
+    r = screen_plane(agree, false_prob=0.01, min_frames=2)
+    assert (r.passed, r.frames, r.via) == (True, 1, "two windows")
+    apart = PlaneAnalysis(512, 8, (track(128, 0.1), track(256, 0.1 + 2 / 256)), ())
+    r = screen_plane(apart, false_prob=0.01, min_frames=2)
+    assert (r.passed, r.via) == (False, None)
+
+
+def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
+    """A barcode LED lighting the right half of the scene: the unlit blocks raise the residual
+    the peaks are tested against, so no frame passes on all blocks together; the right half of
+    the columns passes on its own, and the capture the full cascade flags stays flagged (two
+    such development captures were cleared before the halves were tested)."""
+    from lishield_guard.decode import decode
+    from lishield_guard.detect import _analyse
+
+    cfg = default_config()
+    det = cfg.detector
+    img = make_led_image(PRESETS["table1-seq1"], switching_hz=300.0, lit_fraction=0.5,
+                         ambient=0.5)
+    pa = _analyse(decode(img, limits=cfg.limits).luma, 0, cfg)
+    on_all = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames)
+    assert not on_all.passed
+    halves = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames,
+                          partial_false_prob=det.screen_partial_false_prob,
+                          partial_min_frames=det.screen_partial_min_frames)
+    assert halves.passed and halves.via == "right half", halves
+    assert detect(img, det.replace(screen_false_prob=None)).protected
+    assert detect(img).protected
+    assert not detect(img, det.replace(screen_partial_false_prob=None)).protected
+
+
 def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
     """Barcodes of random presets, rates, exposures and ambient: each one the full cascade
     flags (screen off) is flagged with the screen on."""
