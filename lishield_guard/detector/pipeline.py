@@ -1,4 +1,12 @@
-"""detect(): decode an image and decide whether it carries a known policy barcode."""
+"""The one orchestration: run the stages in order on an image and turn their results into a Verdict.
+
+Detection (`detect`, `detect_decoded`) and calibration (`collect_evidence`, `decide`,
+`screen_specs`, `fold_fits`, `sweep_fits`) run the same stage sequence per axis, in order:
+row profiles and frequency tracks (`analyse_plane`: `profiles`, `tracks`), the first stage
+(`screen`), tone tracks (`tones`), folding (`fold`), the period sweep (`sweep`) and its
+exact-model refinement (`fit`), each judged by the pass rules of `rules`. The paper profile
+(`paper`, Algorithm 1) is dispatched from here too. Stage modules never import this one.
+"""
 
 from __future__ import annotations
 
@@ -10,28 +18,35 @@ from functools import cache
 
 import numpy as np
 
-from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import (
     FIT_RHO_FLOOR,
-    PERIODIC_MIN_PERIODS,
     AppConfig,
     DetectorConfig,
     default_config,
 )
 from lishield_guard.decode import Decoded, decode
-from lishield_guard.emitter import cycles_range, emitter_variants, variant_label
-from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
-from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
-from lishield_guard.paper import run_paper
-from lishield_guard.profile import block_row_profiles, merge_blocks
-from lishield_guard.screen import jpeg_grid_cpr, screen_plane
+from lishield_guard.detector.emitters import cycles_range, emitter_variants, variant_label
+from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
+from lishield_guard.detector.fold import candidate_periods, fold_match, refine_period
+from lishield_guard.detector.paper import run_paper
+from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
+from lishield_guard.detector.rules import (
+    fold_passes,
+    grid_passes,
+    sweep_passes,
+    tone_check_on,
+    tone_fit_confirms,
+)
+from lishield_guard.detector.screen import jpeg_grid_cpr, screen_plane
+from lishield_guard.detector.sweep import sweep_match
+from lishield_guard.detector.tones import SpecMatch, match_spec, scale_range_cpr_per_hz
+from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
 from lishield_guard.spec import BarcodeSpec
-from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
-__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fit_passes",
-           "fit_rule", "fold_fits", "fold_passes", "fold_rule", "grid_rule", "spec_planes",
-           "sweep_fits", "sweep_passes", "tone_rule"]
+__all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decide", "detect",
+           "detect_decoded", "fold_fits", "scaled_detector", "screen_specs", "spec_planes",
+           "sweep_fits"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 MIN_ACROSS = 64  # fewer pixels across the lines cannot fill 8 column blocks of 8 pixels: the
@@ -159,8 +174,11 @@ def _band_cpr(config: AppConfig, row_scale: float = 1.0) -> tuple[float, float]:
     return min(freqs) * s_lo * row_scale, min(0.5, max(freqs) * s_hi * row_scale)
 
 
-def _analyse(plane: np.ndarray, axis: int, config: AppConfig,
-             row_scale: float = 1.0) -> PlaneAnalysis:
+def analyse_plane(plane: np.ndarray, axis: int, config: AppConfig,
+                  row_scale: float = 1.0) -> PlaneAnalysis:
+    """Row profiles and frequency tracks of one plane along ``axis`` (0: rows, 1: columns),
+    over the band the configured policies' tones can fall in at ``row_scale`` stored rows per
+    analysed row: the input of every later stage."""
     det = config.detector
     lo, hi = _band_cpr(config, row_scale)
     fine = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis,
@@ -213,7 +231,7 @@ class Evidence:
         return Evidence(axes, self.row_scale, self.orientation, self.format, self.skipped)
 
 
-def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
+def scaled_detector(det: DetectorConfig, row_scale: float) -> DetectorConfig:
     """Detector settings whose scale range accounts for decoding at 1/row_scale."""
     if row_scale == 1.0:
         return det
@@ -294,10 +312,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         if not m.protected and det.period_sweep:
             fits = sweeps(spec.name)
             passing = [f for f in fits if sweep_passes(f, det)]
-            sw = max(passing or fits, key=lambda f: (_grid_passes(f, det),
+            sw = max(passing or fits, key=lambda f: (grid_passes(f, det),
                                                      f["rho"] - f["rho_lookalike"]),
                      default=None)
-            if passing and not _grid_passes(sw, det):
+            if passing and not grid_passes(sw, det):
                 fit = sw["fit"]
                 reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
                           f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
@@ -352,83 +370,6 @@ def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
 def _screen_passes(chans: dict[str, PlaneAnalysis] | None, screens: dict) -> bool:
     """Whether any plane carrying a spec's channels passed the first stage (`screen`)."""
     return chans is not None and any(screens[id(pa)].passed for pa in chans.values())
-
-
-def tone_check_on(det: DetectorConfig) -> bool:
-    """Whether tone tracks need an exact fit's confirmation (`tone_fit_confirms`): a finite
-    ``tone_min_fit_gain`` with the period sweep and the exact fit enabled."""
-    return det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit
-
-
-def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:
-    """Whether one spec's period-sweep entries on one axis (`_axis_sweeps`) confirm its tone
-    tracks: one of them has an exact-model fit passing `tone_rule`."""
-    return any(f.get("fit") is not None
-               and bool(tone_rule(f["fit"]["rho"], f["fit"]["gain"], f["fit"]["coherence_t"], det))
-               for f in fits)
-
-
-def sweep_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
-    the grid fit passes `grid_rule`, or its exact-model refinement passes `fit_passes`."""
-    return _grid_passes(info, det) or fit_passes(info.get("fit"), det)
-
-
-def _grid_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether the sweep's own (binned-grid) fit passes `grid_rule`."""
-    return bool(grid_rule(info["rho"], info["rho_lookalike"], info["coherence_t"], det))
-
-
-def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
-    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`, or None) passes `fit_rule`."""
-    if fit is None:
-        return False
-    leak = fit.get("chroma_leak")
-    return bool(fit_rule(fit["rho"], fit["gain"], fit["coherence_t"], fit["n_periods"],
-                         math.inf if leak is None else leak, det))
-
-
-# The pass rules below are written once, over numbers or same-shape arrays (``&`` and ``|``
-# rather than ``and`` and ``or``): detection applies them to one fit, calibration
-# (`calibrate.sweep_protected` and friends) to whole tables of cached fits.
-
-
-def grid_rule(rho, rho_lookalike, coherence_t, det: DetectorConfig):
-    """Period-sweep grid fit: rho >= ``sweep_min_rho``, rho beats the stationary look-alike
-    by ``sweep_min_margin`` and the column blocks agree (coherence t >= ``sweep_min_coherence``).
-    """
-    return ((rho >= det.sweep_min_rho) & (rho - rho_lookalike >= det.sweep_min_margin)
-            & (coherence_t >= det.sweep_min_coherence))
-
-
-def fit_rule(rho, gain, coherence_t, n_periods, chroma_leak, det: DetectorConfig):
-    """Exact-model fit, with the exact fit enabled and coherence t >= ``sweep_min_coherence``:
-    rho and gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
-    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
-    thresholds; or (an RGB channel whose colour was measured: ``chroma_leak`` finite, inf
-    when not measured) the leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
-    ``_rgb`` thresholds."""
-    return (det.model_fit & (coherence_t >= det.sweep_min_coherence)
-            & (((rho >= det.fit_min_rho) & (gain >= det.fit_min_gain))
-               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit_min_rho_periodic)
-                  & (gain >= det.fit_min_gain_periodic))
-               | (np.isfinite(chroma_leak) & (chroma_leak <= det.fit_max_leak_rgb)
-                  & (rho >= det.fit_min_rho_rgb) & (gain >= det.fit_min_gain_rgb))))
-
-
-def tone_rule(rho, gain, coherence_t, det: DetectorConfig):
-    """Exact-model fit confirming tone tracks: rho >= `config.FIT_RHO_FLOOR`, coherence t >=
-    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
-    better than the best steady square wave)."""
-    return ((rho >= FIT_RHO_FLOOR) & (coherence_t >= det.sweep_min_coherence)
-            & (gain >= det.tone_min_fit_gain))
-
-
-def fold_rule(rho, rho_lookalike, fold_snr, det: DetectorConfig):
-    """Fold fit: rho >= ``fold_min_rho``, SNR >= ``fold_min_snr`` and rho beats the stationary
-    look-alike by ``fold_min_margin``."""
-    return ((rho >= det.fold_min_rho) & (fold_snr >= det.fold_min_snr)
-            & (rho - rho_lookalike >= det.fold_min_margin))
 
 
 def _related_periods(periods) -> tuple[float, ...]:
@@ -526,7 +467,7 @@ def _best_variants(infos: list[dict]) -> list[dict]:
 def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
     (for calibration sweeps; the specs and candidate periods `decide` searches)."""
-    det = _scaled(config.detector, evidence.row_scale)
+    det = scaled_detector(config.detector, evidence.row_scale)
     all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
     for axis_name, planes in evidence.axes.items():
@@ -541,16 +482,10 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     return out
 
 
-def fold_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a fold fit (`fold_fits` entry) passes `fold_rule` (evidence enough for a
-    verdict of protected)."""
-    return bool(fold_rule(info["rho"], info["rho_lookalike"], info["fold_snr"], det))
-
-
 def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     """Unthresholded fold fits of every spec the first stage passes, on every axis (for
     calibration sweeps; the specs and candidate periods `decide` searches)."""
-    det = _scaled(config.detector, evidence.row_scale)
+    det = scaled_detector(config.detector, evidence.row_scale)
     all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
     for axis_name, planes in evidence.axes.items():
@@ -637,10 +572,10 @@ def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
         if (why := _too_small(decoded.luma.shape, axis)) is not None:
             skipped.append(f"{AXIS_NAMES[axis]}: {why}")
             continue
-        planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
+        planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
         if has_rgb and decoded.is_color:
             rgb = decoded.rgb()
-            planes.update({c: _analyse(rgb[:, :, i], axis, config, decoded.row_scale)
+            planes.update({c: analyse_plane(rgb[:, :, i], axis, config, decoded.row_scale)
                            for i, c in enumerate("RGB")})
         axes[AXIS_NAMES[axis]] = planes
     return Evidence(axes, decoded.row_scale, decoded.orientation, decoded.format,
@@ -649,7 +584,7 @@ def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
 
 def decide(evidence: Evidence, config: AppConfig) -> Verdict:
     """The default profile's verdict from precomputed evidence (no decoding, no profiling)."""
-    det = _scaled(config.detector, evidence.row_scale)
+    det = scaled_detector(config.detector, evidence.row_scale)
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     candidates = []
     for axis_name, planes in evidence.axes.items():
@@ -688,7 +623,7 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
 
 
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
-    det = _scaled(config.detector, decoded.row_scale)
+    det = scaled_detector(config.detector, decoded.row_scale)
     skipped: list[str] = []
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     mono = [(pid, s) for pid, s in specs if not s.is_rgb]
@@ -708,7 +643,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
             skipped.append(f"{name}: {why}")
             continue
         with timer("profile_luma"):
-            planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
+            planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
         skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
         with timer("match"):
             screens: dict = {}  # luma is screened once, for the mono and the RGB specs
@@ -719,7 +654,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
             if decoded.is_color:
                 with timer("profile_color"):
                     colour = decoded.rgb()
-                    planes.update({c: _analyse(colour[:, :, i], axis, config,
+                    planes.update({c: analyse_plane(colour[:, :, i], axis, config,
                                                decoded.row_scale)
                                    for i, c in enumerate("RGB")})
             with timer("match"):
