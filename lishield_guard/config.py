@@ -85,7 +85,7 @@ class DetectorConfig:
     orientations : {"both", "rows"}
         Also analyse columns, so rotation baked into pixels is still detected.
     fold_min_rho : float
-        Pattern folding (fold.py): smallest normalised correlation between the folded row
+        Pattern folding (detector/fold.py): smallest normalised correlation between the folded row
         signal and a spec's template that counts as that barcode (unitless, 0-1).
     fold_min_snr : float
         Pattern folding: the folded pattern's power over its noise power must exceed this.

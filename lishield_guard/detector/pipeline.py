@@ -274,26 +274,9 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         chans = spec_planes(spec, planes)
         if chans is None:
             continue
-        m = match_spec(spec, chans, det)
-        if (pid, spec) not in screened:
-            best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
-            steady = [r.steady_rho for pa in chans.values()
-                      if (r := screens[id(pa)]).steady_rho is not None]
-            if steady:
-                why = (f"the stripes are a steady square wave (look-alike rho="
-                       f"{min(steady):.3f} >= {LOOKALIKE_DOMINANT_RHO}): a PWM-dimmed or "
-                       f"mains-flickering light or a regular texture, not a barcode")
-            else:
-                why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
-                       f"track above the p={best.false_prob:g} noise threshold, "
-                       f"{det.screen_min_frames} needed"
-                       + ("" if det.screen_partial_false_prob is None else
-                          f"; in any half of the columns, {best.part_frames} at p="
-                          f"{det.screen_partial_false_prob:g}, "
-                          f"{det.screen_partial_min_frames} needed") + ")")
-            m = replace(m, protected=False, stage="first stage",
-                        reason=f"first stage: {why}; pattern search skipped")
-            out.append((pid, m))
+        m = match_spec(spec, chans, det)  # tone tracks
+        if (pid, spec) not in screened:  # the first stage cleared every plane of the spec
+            out.append((pid, _cleared_by_screen(m, chans, screens, det)))
             continue
         if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps(spec.name),
                                                                           det):
@@ -301,48 +284,83 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
                 f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
         if not m.protected:
-            info = _fold_info(spec, chans, periods(), det)
-            if info is not None and fold_passes(info, det):
-                reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
-                          f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
-                          f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
-                m = replace(m, protected=True, reason=reason, fold=info, stage="fold")
-            elif info is not None:
-                m = replace(m, fold=info, stage="fold")
+            m = _fold_stage(m, spec, _fold_info(spec, chans, periods(), det), det)
         if not m.protected and det.period_sweep:
-            fits = sweeps(spec.name)
-            passing = [f for f in fits if sweep_passes(f, det)]
-            sw = max(passing or fits, key=lambda f: (grid_passes(f, det),
-                                                     f["rho"] - f["rho_lookalike"]),
-                     default=None)
-            if passing and not grid_passes(sw, det):
-                fit = sw["fit"]
-                reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
-                          f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
-                          f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
-                          f"{fit['n_periods']:.2f} periods in the frame) "
-                          f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
-                          f"{fit['gain']:.1f}x "
-                          f"better than any steady square wave (look-alike rho="
-                          f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
-                          f"column block (t={fit['coherence_t']:.1f})"
-                          + ("" if fit.get("chroma_leak") is None else
-                             f" and in its own colour plane only (chroma leak "
-                             f"{fit['chroma_leak']:.2f})"))
-                m = replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
-            elif passing:
-                reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
-                          f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
-                          f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
-                          f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
-                          f"block (t={sw['coherence_t']:.1f})")
-                m = replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
-            elif sw is not None:
-                m = replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
+            m = _sweep_stage(m, spec, sweeps(spec.name), det)
         out.append((pid, m))
         if m.protected:  # the verdict is certain: later specs are not searched
             break
     return out
+
+
+def _cleared_by_screen(m: SpecMatch, chans: dict[str, PlaneAnalysis], screens: dict,
+                       det: DetectorConfig) -> SpecMatch:
+    """``m`` as the first stage left it: not protected, with the reason its planes failed."""
+    best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
+    steady = [r.steady_rho for pa in chans.values()
+              if (r := screens[id(pa)]).steady_rho is not None]
+    if steady:
+        why = (f"the stripes are a steady square wave (look-alike rho="
+               f"{min(steady):.3f} >= {LOOKALIKE_DOMINANT_RHO}): a PWM-dimmed or "
+               f"mains-flickering light or a regular texture, not a barcode")
+    else:
+        why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
+               f"track above the p={best.false_prob:g} noise threshold, "
+               f"{det.screen_min_frames} needed"
+               + ("" if det.screen_partial_false_prob is None else
+                  f"; in any half of the columns, {best.part_frames} at p="
+                  f"{det.screen_partial_false_prob:g}, "
+                  f"{det.screen_partial_min_frames} needed") + ")")
+    return replace(m, protected=False, stage="first stage",
+                   reason=f"first stage: {why}; pattern search skipped")
+
+
+def _fold_stage(m: SpecMatch, spec: BarcodeSpec, info: dict | None,
+                det: DetectorConfig) -> SpecMatch:
+    """``m`` after folding: protected when the best fold fit ``info`` passes `fold_passes`."""
+    if info is None:
+        return m
+    if not fold_passes(info, det):
+        return replace(m, fold=info, stage="fold")
+    reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
+              f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
+              f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
+    return replace(m, protected=True, reason=reason, fold=info, stage="fold")
+
+
+def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, fits: list[dict],
+                 det: DetectorConfig) -> SpecMatch:
+    """``m`` after the period sweep and its exact fits (one entry per channel, ``fits``):
+    protected when one passes `sweep_passes`; the stage named is the one that passed."""
+    passing = [f for f in fits if sweep_passes(f, det)]
+    sw = max(passing or fits, key=lambda f: (grid_passes(f, det),
+                                             f["rho"] - f["rho_lookalike"]),
+             default=None)
+    if sw is None:
+        return m
+    if not passing:
+        return replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
+    if not grid_passes(sw, det):
+        fit = sw["fit"]
+        reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
+                  f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
+                  f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
+                  f"{fit['n_periods']:.2f} periods in the frame) "
+                  f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
+                  f"{fit['gain']:.1f}x "
+                  f"better than any steady square wave (look-alike rho="
+                  f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
+                  f"column block (t={fit['coherence_t']:.1f})"
+                  + ("" if fit.get("chroma_leak") is None else
+                     f" and in its own colour plane only (chroma leak "
+                     f"{fit['chroma_leak']:.2f})"))
+        return replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
+    reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
+              f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
+              f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
+              f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
+              f"block (t={sw['coherence_t']:.1f})")
+    return replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
 
 
 def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
@@ -562,36 +580,85 @@ def _too_small(shape: tuple[int, ...], axis: int) -> str | None:
     return None
 
 
-def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
-    """Every plane on every configured axis (for calibration sweeps; `detect` is lazier)."""
-    det = config.detector
-    axes = {}
-    skipped = []
-    has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
-    for axis in (0, 1) if det.orientations == "both" else (0,):
+def _analysed_axes(decoded: Decoded, config: AppConfig, timer: _Timer, skipped: list[str]):
+    """Per configured axis (rows, then columns), analysed on first use: (axis name, planes
+    holding luma ``"L"``, ``colour()`` adding the R, G, B planes when the image has colour and
+    returning the planes). Axes too small to analyse are named in ``skipped`` instead."""
+    for axis in (0, 1) if config.detector.orientations == "both" else (0,):
+        name = AXIS_NAMES[axis]
         if (why := _too_small(decoded.luma.shape, axis)) is not None:
-            skipped.append(f"{AXIS_NAMES[axis]}: {why}")
+            skipped.append(f"{name}: {why}")
             continue
-        planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
-        if has_rgb and decoded.is_color:
-            rgb = decoded.rgb()
-            planes.update({c: analyse_plane(rgb[:, :, i], axis, config, decoded.row_scale)
-                           for i, c in enumerate("RGB")})
-        axes[AXIS_NAMES[axis]] = planes
+        with timer("profile_luma"):
+            planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
+
+        def colour(axis=axis, planes=planes) -> dict[str, PlaneAnalysis]:
+            if decoded.is_color:
+                with timer("profile_color"):
+                    rgb = decoded.rgb()
+                    planes.update({c: analyse_plane(rgb[:, :, i], axis, config,
+                                                    decoded.row_scale)
+                                   for i, c in enumerate("RGB")})
+            return planes
+
+        yield name, planes, colour
+
+
+def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
+    """Every plane on every configured axis, analysed up front (for calibration sweeps;
+    `detect` analyses lazily, with the same `analyse_plane`)."""
+    skipped: list[str] = []
+    has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
+    axes = {name: colour() if has_rgb else planes
+            for name, planes, colour in _analysed_axes(decoded, config, _Timer(), skipped)}
     return Evidence(axes, decoded.row_scale, decoded.orientation, decoded.format,
                     tuple(skipped))
 
 
 def decide(evidence: Evidence, config: AppConfig) -> Verdict:
-    """The default profile's verdict from precomputed evidence (no decoding, no profiling)."""
-    det = scaled_detector(config.detector, evidence.row_scale)
+    """The default profile's verdict from precomputed evidence (no decoding, no profiling):
+    `_run_stages` over every plane of every axis, every spec at once."""
+    axes = ((name, planes, None) for name, planes in evidence.axes.items())
+    return _run_stages(axes, config, row_scale=evidence.row_scale, fmt=evidence.format,
+                       orientation=evidence.orientation, skipped=list(evidence.skipped),
+                       timer=_Timer(), lazy=False)
+
+
+def _run_stages(axes, config: AppConfig, *, row_scale: float, fmt: str, orientation: int,
+                skipped: list[str], timer: _Timer, lazy: bool) -> Verdict:
+    """The default profile's stages on each axis in turn (`_decide_axis`), and the Verdict:
+    the one orchestration of detection (`detect`, lazy) and of `decide` (calibration).
+
+    ``axes`` yields (axis name, planes, colour) as `_analysed_axes` does. Lazy: the mono specs
+    are matched on luma first, the RGB specs (with the colour planes, ``colour()``) only when
+    luma is not decisive, and the columns only when the rows found no barcode. Otherwise every
+    spec is matched at once on the planes given, on every axis.
+    """
+    det = scaled_detector(config.detector, row_scale)
     specs = [(p.id, s) for p in config.policies for s in p.specs]
-    candidates = []
-    for axis_name, planes in evidence.axes.items():
-        candidates += [(axis_name, pid, m)
-                       for pid, m in _decide_axis(planes, specs, det, evidence.grid_cpr)]
-    return _verdict(candidates, config, list(evidence.skipped), {}, evidence.orientation,
-                    evidence.format)
+    first = [(pid, s) for pid, s in specs if not (lazy and s.is_rgb)]
+    rgb = [(pid, s) for pid, s in specs if lazy and s.is_rgb]
+    grid = jpeg_grid_cpr(fmt, row_scale)
+    candidates: list[tuple[str, str, SpecMatch]] = []
+    for name, planes, colour in axes:
+        skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
+        with timer("match"):
+            screens: dict = {}  # luma is screened once, for the mono and the RGB specs
+            found = _decide_axis(planes, first, det, grid, screens)
+        if rgb and not any(m.protected for _, m in found):
+            # Colour planes whenever luma is not decisive: an RGB barcode's channels can
+            # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
+            planes = colour()
+            with timer("match"):
+                found += _decide_axis(planes, rgb, det, grid, screens)
+        elif rgb:
+            skipped.append(f"{name}: colour planes (luma verdict certain)")
+        candidates += [(name, pid, m) for pid, m in found]
+        if lazy and any(m.protected for _, m in found):
+            if name == AXIS_NAMES[0] and det.orientations == "both":
+                skipped.append("columns: verdict certain from rows")
+            break
+    return _verdict(candidates, config, skipped, timer.ms, orientation, fmt)
 
 
 def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
@@ -623,47 +690,14 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
 
 
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
-    det = scaled_detector(config.detector, decoded.row_scale)
+    """`_run_stages`, lazily, on the planes of a decoded image analysed as they are needed."""
     skipped: list[str] = []
-    specs = [(p.id, s) for p in config.policies for s in p.specs]
-    mono = [(pid, s) for pid, s in specs if not s.is_rgb]
-    rgb = [(pid, s) for pid, s in specs if s.is_rgb]
-    axes = (0, 1) if det.orientations == "both" else (0,)
-    grid = jpeg_grid_cpr(decoded.format, decoded.row_scale)
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
-    if decoded.orientation in (5, 6, 7, 8) and det.orientations == "both":
+    if decoded.orientation in (5, 6, 7, 8) and config.detector.orientations == "both":
         skipped.append(f"EXIF orientation {decoded.orientation}: stored rows are sensor rows, "
                        f"analysed first")
-    candidates: list[tuple[str, str, SpecMatch]] = []
-    for axis in axes:
-        name = AXIS_NAMES[axis]
-        if (why := _too_small(decoded.luma.shape, axis)) is not None:
-            skipped.append(f"{name}: {why}")
-            continue
-        with timer("profile_luma"):
-            planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
-        skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
-        with timer("match"):
-            screens: dict = {}  # luma is screened once, for the mono and the RGB specs
-            found = _decide_axis(planes, mono, det, grid, screens)
-        if rgb and not any(m.protected for _, m in found):
-            # Colour planes whenever luma is not decisive: an RGB barcode's channels can
-            # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
-            if decoded.is_color:
-                with timer("profile_color"):
-                    colour = decoded.rgb()
-                    planes.update({c: analyse_plane(colour[:, :, i], axis, config,
-                                               decoded.row_scale)
-                                   for i, c in enumerate("RGB")})
-            with timer("match"):
-                found += _decide_axis(planes, rgb, det, grid, screens)
-        elif rgb:
-            skipped.append(f"{name}: colour planes (luma verdict certain)")
-        candidates += [(name, pid, m) for pid, m in found]
-        if any(m.protected for _, m in found):
-            if axis == 0 and len(axes) > 1:
-                skipped.append("columns: verdict certain from rows")
-            break
-    return _verdict(candidates, config, skipped, timer.ms, decoded.orientation, decoded.format)
+    return _run_stages(_analysed_axes(decoded, config, timer, skipped), config,
+                       row_scale=decoded.row_scale, fmt=decoded.format,
+                       orientation=decoded.orientation, skipped=skipped, timer=timer, lazy=True)

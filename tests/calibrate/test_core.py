@@ -108,8 +108,8 @@ def test_cached_fit_tables_judged_as_the_rules_say(records):
     """Calibration's table verdicts (`sweep_protected`, `fold_protected`) on the real cached
     fits of the tiny sets equal the rules written out in this test, at the shipped and at lax
     settings. `test_candidate_table_agrees_with_decide` cannot see a rule changed in
-    detect.py (both of its sides call it); this test can, e.g. the look-alike margin dropped:
-    at the lax settings some real fits fail on that term alone (asserted)."""
+    detector/rules.py (both of its sides call it); this test can, e.g. the look-alike margin
+    dropped: at the lax settings some real fits fail on that term alone (asserted)."""
     cfg, recs = records
     n_pass = n_lookalike_only = 0
     for overrides in _TABLE_SETTINGS:

@@ -2,8 +2,8 @@
 
 Detection (`rules.sweep_passes`, `fold_passes`, `tone_fit_confirms`) and calibration's table
 form (`calibrate.sweep_protected`, `fold_protected`, `tone_confirmed`) both call the rule
-functions of detect.py (`grid_rule`, `fit_rule`, `fold_rule`, `tone_rule`), so comparing the
-two forms with each other cannot catch a rule changed in that one place. Each form is checked
+functions of detector/rules.py (`grid_rule`, `fit_rule`, `fold_rule`, `tone_rule`), so comparing
+the two forms with each other cannot catch a rule changed in that one place. Each form is checked
 here against (a) hand-computed verdicts at and around every threshold and (b) the rules
 written out below in plain Python (`_grid`, `_fit`, `_tone`, `_fold`), not imported.
 
