@@ -482,17 +482,23 @@ def _best_variants(infos: list[dict]) -> list[dict]:
     return list(best.values())
 
 
-def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
-    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
+def _screened_axes(evidence: Evidence, config: AppConfig):
+    """Per axis of ``evidence`` with luma: (axis name, planes, detector settings, the (policy
+    id, spec) pairs the first stage passes, their candidate periods), as `decide` sees them."""
     det = scaled_detector(config.detector, evidence.row_scale)
     all_specs = [(p.id, s) for p in config.policies for s in p.specs]
-    out = []
     for axis_name, planes in evidence.axes.items():
         if "L" not in planes:
             continue
         _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
-        periods = _periods(planes["L"], specs, det)
+        yield axis_name, planes, det, specs, _periods(planes["L"], specs, det)
+
+
+def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
+    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
+    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
+    out = []
+    for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
             for info in sweeps[spec.name]:
@@ -503,14 +509,8 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
 def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     """Unthresholded fold fits of every spec the first stage passes, on every axis (for
     calibration sweeps; the specs and candidate periods `decide` searches)."""
-    det = scaled_detector(config.detector, evidence.row_scale)
-    all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
-    for axis_name, planes in evidence.axes.items():
-        if "L" not in planes:
-            continue
-        _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
-        periods = _periods(planes["L"], specs, det)
+    for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         for pid, spec in specs:
             chans = spec_planes(spec, planes)
             info = _fold_info(spec, chans, periods, det) if chans else None
