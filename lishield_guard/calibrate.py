@@ -438,7 +438,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     decoded = decode(source, limits=config.limits, fast=det.fast_decode,
                      max_rows=det.max_decode_rows)
     evidence = collect_evidence(decoded, config)
-    # fits of specs the first stage clears never decide (detect.decide skips them)
+    # fits of specs the first stage clears never decide (pipeline.decide skips them)
     screened = screened_candidates(evidence, config)
     folds = [f for f in fold_fits(evidence, config)
              if screened[_candidate_index(f, config)]]

@@ -1,4 +1,4 @@
-"""The fast sweep path agrees with detect.decide, and the null model behaves."""
+"""The fast sweep path agrees with pipeline.decide, and the null model behaves."""
 
 from __future__ import annotations
 
