@@ -3,7 +3,7 @@
 A clairvoyant detector knows each barcode capture's true template (the light its emitter
 played: f_B, slot order, restart or continuous phase, rise time; row rate, exposure, frame
 start) and correlates it with the rows the default profile fits (the quiet-weighted
-linear column sub-blocks, `modelfit.linear_common`, high-passed as in the exact fit). For its
+linear column sub-blocks, `fit.linear_common`, high-passed as in the exact fit). For its
 false alarms each positive is rendered a second time with the same scene, camera, noise and
 JPEG settings under steady light (its *twin*) and the same template is correlated with the
 twin's rows. No detector that must also search over the unknown parameters, on the same rows,
@@ -34,12 +34,12 @@ import numpy as np
 
 from lishield_guard import load_config
 from lishield_guard.decode import decode
-from lishield_guard.detect import _analyse
-from lishield_guard.modelfit import (
+from lishield_guard.detector.fit import (
     _highpass,
     linear_common,
     linearise,
 )
+from lishield_guard.detector.pipeline import analyse_plane
 from lishield_guard.spec import get_preset
 from lishield_guard.stats import clopper_pearson
 from lishield_guard.threads import one_thread_per_worker
@@ -88,7 +88,7 @@ def _template_corr(jpeg, item: dict, cfg) -> dict[str, float]:
     (see `VARIANTS`); empty when the image has too few rows to analyse."""
     det = cfg.detector
     dec = decode(jpeg, limits=cfg.limits, fast=det.fast_decode, max_rows=det.max_decode_rows)
-    pa = _analyse(dec.luma, 0, cfg, dec.row_scale)
+    pa = analyse_plane(dec.luma, 0, cfg, dec.row_scale)
     if pa.blocks is None:
         return {}
     n = pa.blocks.shape[1]
@@ -101,7 +101,7 @@ def _template_corr(jpeg, item: dict, cfg) -> dict[str, float]:
         rgb = dec.rgb()
         best = -1.0
         for i, ch in enumerate("RGB"):
-            pc = _analyse(np.ascontiguousarray(rgb[..., i]), 0, cfg, dec.row_scale)
+            pc = analyse_plane(np.ascontiguousarray(rgb[..., i]), 0, cfg, dec.row_scale)
             if pc.blocks is not None and pc.blocks.shape[1] == n:
                 best = max(best, _rows_variants(pc.blocks, pc.fit_blocks, chan[ch], hp)["matched"])
         out["planes"] = max(best, out["matched"])

@@ -1,10 +1,10 @@
-"""Run time against error of the steady square-wave look-alike search (`modelfit.lookalike_rho`).
+"""Run time against error of the steady square-wave look-alike search (`fit.lookalike_rho`).
 
 The exact fit's gain divides the barcode's misfit by the best steady square wave's, so a
 look-alike search that stops short of the true square wave inflates the gain of a PWM or
 mains light and can pass it as a barcode. This benchmark renders steady square waves (random
 period, duty, phase and exposure, behind the fit's high-pass, over a drifting scene plus
-noise) and runs the search with each number of refined starts (`modelfit.SQUARE_REFINES`),
+noise) and runs the search with each number of refined starts (`detector.fit.SQUARE_REFINES`),
 in a shuffled order per case so that machine noise falls on all settings alike.
 
 Each case's reference is the *oracle* rho: the correlation of the rows with the true square
@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
-from lishield_guard import modelfit
-from lishield_guard.modelfit import HIGHPASS_CYCLES, _highpass, lookalike_rho, square_rows
+from lishield_guard.detector import fit as fit_mod
+from lishield_guard.detector.fit import HIGHPASS_CYCLES, _highpass, lookalike_rho, square_rows
 from lishield_guard.stats import clopper_pearson
 
 
@@ -56,20 +56,20 @@ def make_case(rng: np.random.Generator, n_rows: int):
 def run(cases: int, refines: list[int], seed: int, n_rows: int) -> list[dict]:
     """Rho and seconds of every setting on every case (settings in a shuffled order)."""
     rng = np.random.default_rng(seed)
-    shipped = modelfit.SQUARE_REFINES
+    shipped = fit_mod.SQUARE_REFINES
     out = []
     try:
         for i in range(cases):
             y, hp, params = make_case(rng, n_rows)
             rec = {"case": i, **params, "rho": {}, "s": {}}
             for r in rng.permutation(refines):
-                modelfit.SQUARE_REFINES = int(r)
+                fit_mod.SQUARE_REFINES = int(r)
                 t0 = time.perf_counter()
                 rec["rho"][int(r)] = lookalike_rho(y, hp)
                 rec["s"][int(r)] = time.perf_counter() - t0
             out.append(rec)
     finally:
-        modelfit.SQUARE_REFINES = shipped
+        fit_mod.SQUARE_REFINES = shipped
     return out
 
 
@@ -77,7 +77,7 @@ def summarise(recs: list[dict], refines: list[int], tol: float) -> list[dict]:
     """Per setting: misses (rho more than ``tol`` below the oracle) with a 95% interval,
     median and worst shortfall, median time and median paired time ratio to the shipped
     setting."""
-    shipped = modelfit.SQUARE_REFINES
+    shipped = fit_mod.SQUARE_REFINES
     oracle = np.array([r["oracle_rho"] for r in recs])
     rows = []
     for k in refines:
@@ -111,7 +111,7 @@ def main() -> None:
     recs = run(args.cases, refines, args.seed, args.rows)
     summary = summarise(recs, refines, args.tol)
     print(f"{args.cases} steady square waves, {args.rows} rows, seed {args.seed}; "
-          f"shipped SQUARE_REFINES = {modelfit.SQUARE_REFINES}")
+          f"shipped SQUARE_REFINES = {fit_mod.SQUARE_REFINES}")
     print(f"median oracle rho {np.median([r['oracle_rho'] for r in recs]):.3f}; a miss ends "
           f"more than {args.tol} below the oracle")
     print(f"{'refines':>7}  {'misses':>13}  {'95% CI':>15}  {'med shortfall':>13}  "

@@ -5,11 +5,11 @@ from the manifest:
 
 - ``grid_ideal``: the period sweep's best binned-grid fit of the *noise-free* LED log signal
   (what the grid can reach at best);
-- ``truth_lin`` / ``truth_log``: correlation of the exact template (`modelfit.render_rows`) at
+- ``truth_lin`` / ``truth_log``: correlation of the exact template (`fit.render_rows`) at
   the true period, c_1, phase and exposure with the *observed* rows (linearised / log contrast),
   rows being the plain mean of the 8 column blocks;
 - ``truth_w``: the same with the rows the detector fits, the quiet-weighted mean of the
-  linearised column sub-blocks (`modelfit.linear_common`);
+  linearised column sub-blocks (`fit.linear_common`);
 - whether the shipped detector flags the image.
 
 Usage::
@@ -29,17 +29,17 @@ from pathlib import Path
 import numpy as np
 
 from lishield_guard import detect, load_config
-from lishield_guard.barcode import scale_range_cpr_per_hz
 from lishield_guard.camera import CameraModel
 from lishield_guard.decode import decode
-from lishield_guard.fold import sweep_match
-from lishield_guard.modelfit import (
+from lishield_guard.detector.fit import (
     _highpass,
     linear_common,
     linearise,
     pattern_knots,
     render_rows,
 )
+from lishield_guard.detector.sweep import sweep_match
+from lishield_guard.detector.tones import scale_range_cpr_per_hz
 from lishield_guard.spec import get_preset
 
 
@@ -79,9 +79,13 @@ def main() -> int:
         m = spec.n_tones
         dec = decode(args.dataset / it["file"], limits=cfg.limits, fast=det.fast_decode,
                      max_rows=det.max_decode_rows)
-        from lishield_guard.detect import _analyse, _period_range_rows, _scaled
+        from lishield_guard.detector.pipeline import (
+            _period_range_rows,
+            analyse_plane,
+            scaled_detector,
+        )
 
-        pa = _analyse(dec.luma, 0, cfg, dec.row_scale)
+        pa = analyse_plane(dec.luma, 0, cfg, dec.row_scale)
         if pa.blocks is None:
             continue
         n = pa.blocks.shape[1]
@@ -101,7 +105,7 @@ def main() -> int:
         if ideal.size != n:  # decoded at a reduced scale: resample the ideal signal
             ideal = np.interp(np.linspace(0, ideal.size - 1, n), np.arange(ideal.size), ideal)
         blocks = ideal[None, :] + np.random.default_rng(0).normal(0, 1e-5, (8, n))
-        d2 = _scaled(det, dec.row_scale)
+        d2 = scaled_detector(det, dec.row_scale)
         sm = sweep_match(blocks, [(spec, "W")], scale_range_cpr_per_hz=scale_range_cpr_per_hz(d2),
                          period_range_rows=[_period_range_rows(spec, d2)])[0]
         row = {"file": it["file"], "preset": it["preset"],

@@ -11,7 +11,7 @@ from lishield_guard.config import (
     load_config,
 )
 from lishield_guard.decode import decode, validate_image
-from lishield_guard.detect import detect
+from lishield_guard.detector import detect
 from lishield_guard.errors import (
     ConfigError,
     CorruptImageError,

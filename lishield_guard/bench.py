@@ -162,7 +162,7 @@ def _time_one(path: Path, settings: Sequence[Setting], *, repeat: int, offset: i
     (or the exception it raised); every verdict's ``timings_ms`` is collected under
     ``verdicts["<name>:stages"]``.
     """
-    from lishield_guard.detect import detect
+    from lishield_guard.detector import detect
 
     floor_s: list[float] = []
     times_s: dict[str, list[float]] = {s.name: [] for s in settings}
@@ -432,7 +432,7 @@ def _memory_probe(path: str, setting: str | None, config_path: str | None) -> di
     from PIL import Image
 
     from lishield_guard.config import load_config
-    from lishield_guard.detect import detect
+    from lishield_guard.detector import detect
 
     config = None if setting is None else make_settings([setting], load_config(config_path))[0]
 

@@ -78,22 +78,19 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from lishield_guard.barcode import match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import AppConfig, DetectorConfig
 from lishield_guard.decode import decode
-from lishield_guard.detect import (
+from lishield_guard.detector.paper import block_peaks_hz, count_ratio_matches, required_matches
+from lishield_guard.detector.pipeline import (
     collect_evidence,
-    fit_rule,
     fold_fits,
-    fold_rule,
-    grid_rule,
+    scaled_detector,
     screen_specs,
     spec_planes,
     sweep_fits,
-    tone_check_on,
-    tone_rule,
 )
-from lishield_guard.paper import block_peaks_hz, count_ratio_matches, required_matches
+from lishield_guard.detector.rules import fit_rule, fold_rule, grid_rule, tone_check_on, tone_rule
+from lishield_guard.detector.tones import match_spec, scale_range_cpr_per_hz
 
 __all__ = [
     "Claim",
@@ -317,18 +314,10 @@ def _specs(config: AppConfig) -> list:
     return [s for p in config.policies for s in p.specs]
 
 
-def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
-    # as detect.decide: the scale range accounts for DCT-domain downscaling
-    if row_scale == 1.0:
-        return det
-    return det.replace(min_row_rate_hz=det.min_row_rate_hz / row_scale,
-                       max_row_rate_hz=det.max_row_rate_hz / row_scale)
-
-
 def screened_candidates(evidence, config: AppConfig) -> np.ndarray:
     """Per `candidate_table` column (axis, spec): does the first stage let it be searched?
 
-    As `detect.decide`: a spec goes on when any plane carrying its channels passes
+    As `pipeline.decide`: a spec goes on when any plane carrying its channels passes
     `screen.screen_plane` at ``screen_false_prob`` / ``screen_min_frames`` (not swept); a spec
     that fails it is never protected, by tone tracks, folding or the period sweep.
 
@@ -377,10 +366,10 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
 
     Notes
     -----
-    Mirrors `lishield_guard.detect.decide`: a candidate is protected when n_matched >= need,
+    Mirrors `pipeline.decide`: a candidate is protected when n_matched >= need,
     purity >= min_purity, switches >= 1 and, for RGB specs, >= 2 channels are hit.
     A plane whose tracks hold fewer than 2 significant frames cannot hit any tone
-    (`barcode.MIN_FRAMES`), and a candidate the first stage clears (`screened_candidates`) is
+    (`tones.MIN_FRAMES`), and a candidate the first stage clears (`screened_candidates`) is
     never protected, so both are recorded as 0 without running the matcher.
     """
     specs = _specs(config)
@@ -394,7 +383,7 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
         if fp not in by_fp:
             by_fp[fp] = evidence.with_false_prob(fp)
         ev = by_fp[fp]
-        det = _scaled(config.detector.replace(peak_false_prob=fp, tone_rel_tol=tol,
+        det = scaled_detector(config.detector.replace(peak_false_prob=fp, tone_rel_tol=tol,
                                               min_occupancy=occ_lo, max_occupancy=occ_hi),
                       ev.row_scale)
         for ai, axis in enumerate(AXES):
@@ -449,7 +438,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     decoded = decode(source, limits=config.limits, fast=det.fast_decode,
                      max_rows=det.max_decode_rows)
     evidence = collect_evidence(decoded, config)
-    # fits of specs the first stage clears never decide (detect.decide skips them)
+    # fits of specs the first stage clears never decide (pipeline.decide skips them)
     screened = screened_candidates(evidence, config)
     folds = [f for f in fold_fits(evidence, config)
              if screened[_candidate_index(f, config)]]
@@ -500,7 +489,7 @@ def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorCon
                    ) -> np.ndarray:
     """Per image and `candidate_table` column: may its tone tracks decide? True everywhere
     when the check is off; else whether an exact fit of that (axis, spec) confirms them (the
-    array form of `detect.tone_fit_confirms`)."""
+    array form of `rules.tone_fit_confirms`)."""
     out = np.zeros((len(sweeps), n_candidates), dtype=bool)
     if not tone_check_on(det):
         out[:] = True
@@ -515,14 +504,14 @@ def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorCon
 
 def fold_protected(folds: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
     """Per image: does any fold fit (rows of rho, rho_lookalike, fold_snr) pass
-    `detect.fold_rule`? The fold stage does not depend on the swept tone parameters."""
+    `rules.fold_rule`? The fold stage does not depend on the swept tone parameters."""
     return _any_fit_passes(folds, lambda rho, alt, snr: fold_rule(rho, alt, snr, det))
 
 
 def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray:
-    """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass `detect.grid_rule`,
-    or its exact-model fit `detect.fit_rule` (an unmeasured chroma leak is cached as inf, as
-    `detect.fit_passes` passes it)? The table form of `detect.sweep_passes`."""
+    """Per image: does any period-sweep fit (rows of `SWEEP_COLUMNS`) pass `rules.grid_rule`,
+    or its exact-model fit `rules.fit_rule` (an unmeasured chroma leak is cached as inf, as
+    `rules.fit_passes` passes it)? The table form of `rules.sweep_passes`."""
     return _any_fit_passes(sweeps, lambda rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_np: (
         grid_rule(rho, alt, t, det) | fit_rule(f_rho, f_gain, f_t, f_np, leak, det)))
 
@@ -1121,7 +1110,7 @@ def null_model_far(evidence, config: AppConfig, *, q: float | None = None) -> di
     """
     det = config.detector
     ev = evidence.with_false_prob(det.peak_false_prob)
-    sdet = _scaled(det, ev.row_scale)
+    sdet = scaled_detector(det, ev.row_scale)
     s_lo, s_hi = scale_range_cpr_per_hz(sdet)
     a = 2 * math.log1p(det.tone_rel_tol)
     mono = [s for s in _specs(config) if not s.is_rgb]

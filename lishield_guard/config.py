@@ -31,7 +31,7 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_RESOURCE = "default.toml"
-FIT_RHO_FLOOR = 0.8  # modelfit: below this fit rho the look-alike is not fitted (gain 0)
+FIT_RHO_FLOOR = 0.8  # detector.fit: below this fit rho the look-alike is not fitted (gain 0)
 PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit_*_periodic path
 
 
@@ -85,7 +85,7 @@ class DetectorConfig:
     orientations : {"both", "rows"}
         Also analyse columns, so rotation baked into pixels is still detected.
     fold_min_rho : float
-        Pattern folding (fold.py): smallest normalised correlation between the folded row
+        Pattern folding (detector/fold.py): smallest normalised correlation between the folded row
         signal and a spec's template that counts as that barcode (unitless, 0-1).
     fold_min_snr : float
         Pattern folding: the folded pattern's power over its noise power must exceed this.
@@ -101,7 +101,7 @@ class DetectorConfig:
     sweep_min_margin : float
         Period sweep: the template must beat the best stationary look-alike by this much rho.
     model_fit : bool
-        Refine the sweep's best grid fits with the exact capture model (`modelfit.refine`):
+        Refine the sweep's best grid fits with the exact capture model (`fit.refine`):
         linear light, the pattern integrated over each row's exposure, continuous period,
         c_1, phase and exposure; the stationary look-alike is refined the same way.
     fit_min_rho : float
@@ -113,7 +113,7 @@ class DetectorConfig:
     fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb : float
         A second, colour-verified way for a channel of an RGB barcode to pass: its fit needs
         only these rho and gain when the fitted template's amplitudes in the R, G, B planes
-        point at its own channel (`modelfit.chroma_leak` <= ``fit_max_leak_rgb``; a grey
+        point at its own channel (`fit.chroma_leak` <= ``fit_max_leak_rgb``; a grey
         scene's structure shows in all three planes alike, leak sqrt 2). 0 leak turns this
         path off.
     fit_min_rho_periodic, fit_min_gain_periodic : float

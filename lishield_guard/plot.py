@@ -28,7 +28,7 @@ import numpy as np
 __all__ = ["plot_verdict", "verdict_figure", "verdict_png", "verdict_title"]
 
 CHANNEL_COLOURS = {"W": "tab:purple", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
-HIGHPASS_CYCLES = 1.5  # as modelfit.HIGHPASS_CYCLES: content below this per period is ignored
+HIGHPASS_CYCLES = 1.5  # as detector.fit.HIGHPASS_CYCLES: content below this per period is ignored
 FIGSIZE_IN = (11.0, 9.5)
 DPI = 100
 
@@ -80,7 +80,7 @@ def verdict_title(verdict) -> str:
 
 def _highpass(n_rows: int, sigma_rows: float):
     """x minus its Gaussian trend of ``sigma_rows`` (mirror-extended), as the fit does."""
-    from lishield_guard.fold import highpass_gain, mirror_rfft
+    from lishield_guard.detector.sweep import highpass_gain, mirror_rfft
 
     gain = highpass_gain(n_rows, sigma_rows)
 
@@ -151,7 +151,7 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
                 return np.asarray(blocks, dtype=np.float64), decoded.row_scale
         except (TypeError, ValueError, AttributeError):
             pass
-    from lishield_guard.profile import block_row_profiles, detrend_profiles
+    from lishield_guard.detector.profiles import block_row_profiles, detrend_profiles
 
     prof = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis)
     prof = np.log(np.maximum(np.asarray(prof, dtype=np.float64), 1e-3))
@@ -162,8 +162,8 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
 def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
     """Rows of the best steady square wave for high-passed rows ``y`` and its parameters
     (frequency in cycles per row, duty, phase and exposure in cycles, rho), from the evidence
-    when it carries them, else searched the way `modelfit.lookalike_rho` searches."""
-    from lishield_guard import modelfit
+    when it carries them, else searched the way `detector.fit.lookalike_rho` searches."""
+    from lishield_guard.detector import fit as fit_mod
 
     n = y.size
     rows = np.arange(n, dtype=np.float64)
@@ -173,7 +173,7 @@ def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
 
     def corr(params) -> float:
         f, d, ph, e = params
-        t = hp(modelfit.square_rows(f * rows + ph, d, e))
+        t = hp(fit_mod.square_rows(f * rows + ph, d, e))
         tt = float(t @ t)
         return float(t @ y) / math.sqrt(tt * yy) if tt > 0 else 0.0
 
@@ -184,13 +184,13 @@ def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
             th = (float(f), float(given.get("duty", 0.5)),
                   float(given.get("phase_cycles", given.get("phase", 0.0))),
                   float(given.get("exposure_cycles", given.get("exposure", 0.0))))
-            return (hp(modelfit.square_rows(th[0] * rows + th[2], th[1], th[3])),
+            return (hp(fit_mod.square_rows(th[0] * rows + th[2], th[1], th[3])),
                     {"freq_cpr": th[0], "duty": th[1], "rho": corr(th)})
-    square_start = getattr(modelfit, "_square_start", None)
-    nelder_mead = getattr(modelfit, "_nelder_mead", None)
+    square_start = getattr(fit_mod, "_square_start", None)
+    nelder_mead = getattr(fit_mod, "_nelder_mead", None)
     if square_start is None or nelder_mead is None:
         return None
-    cands = modelfit.square_candidates(y)
+    cands = fit_mod.square_candidates(y)
     if not cands:
         return None
     try:
@@ -212,7 +212,7 @@ def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
         if best is None or val < best[0]:
             best = (val, th)
     f, d, ph, e = best[1]
-    return (hp(modelfit.square_rows(f * rows + ph, d, e)),
+    return (hp(fit_mod.square_rows(f * rows + ph, d, e)),
             {"freq_cpr": float(f), "duty": float(d), "rho": -best[0]})
 
 
@@ -343,7 +343,7 @@ def verdict_figure(source, verdict, config):
     channel = (info or {}).get("channel") or "W"
     blocks, row_scale = _plane_rows(source, verdict, config, axis,
                                     "L" if channel == "W" else channel)
-    from lishield_guard.modelfit import linear_common, pattern_knots, render_rows
+    from lishield_guard.detector.fit import linear_common, pattern_knots, render_rows
 
     x, _, _ = linear_common(blocks)
     n = x.size

@@ -581,7 +581,7 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
         ``required``, ``score``, ``error``, ``code``, ``undetermined_reason`` and
         ``elapsed_ms`` (wall time of the detection, in milliseconds).
     """
-    from lishield_guard.detect import detect
+    from lishield_guard.detector import detect
 
     t0 = time.perf_counter()
     try:
@@ -704,7 +704,7 @@ def _init_worker(config: AppConfig, parent_pid: int | None = None) -> None:
     if parent_pid is not None:
         _watch_parent(parent_pid)
     one_thread_per_worker()
-    import lishield_guard.detect  # noqa: F401 - warm the imports once per worker
+    import lishield_guard.detector  # noqa: F401 - warm the imports once per worker
 
 
 def _scan_in_worker(source: str | bytes) -> dict[str, Any]:
@@ -753,7 +753,7 @@ def _new_pool(config: AppConfig, jobs: int):
     from concurrent.futures import ProcessPoolExecutor
 
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["lishield_guard.scan", "lishield_guard.detect"])
+    ctx.set_forkserver_preload(["lishield_guard.scan", "lishield_guard.detector"])
     return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker,
                                initargs=(config, os.getpid()))
 

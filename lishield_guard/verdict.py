@@ -6,7 +6,7 @@ A verdict has one of three statuses (`Verdict.status`):
 - ``"clean"``: the detector analysed the image and found none;
 - ``"undetermined"``: the detector could not look (``undetermined`` holds the reason), e.g. an
   image with no analysable axis (default profile: at least 64 lines, each at least 64 pixels
-  long, `lishield_guard.detect.MIN_ROWS` and `MIN_ACROSS`: a 64x48 thumbnail is
+  long, `lishield_guard.detector.pipeline.MIN_ROWS` and `MIN_ACROSS`: a 64x48 thumbnail is
   undetermined), or smaller than the paper profile's block grid. An
   undetermined verdict is never "clean": callers that must fail closed check ``status``.
 """

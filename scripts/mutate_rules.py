@@ -74,7 +74,7 @@ class Mutant:
 
 
 def _rule(name: str, what: str, func: str | None, old: str, new: str,
-          path: str = "lishield_guard/detect.py", group: str = "rules",
+          path: str = "lishield_guard/detector/rules.py", group: str = "rules",
           extra: tuple[str, ...] = ()) -> Mutant:
     return Mutant(name, group, what, (Edit(path, func, old, new),),
                   RULE_TESTS + extra + LOOKALIKE_TESTS)
@@ -99,18 +99,19 @@ MUTANTS: tuple[Mutant, ...] = (
           "(gain >= det.tone_min_fit_gain)", "(gain >= -np.inf)", group="defences"),
     _rule("gain-ignores-lookalike", "ModelFit.gain: rho^2 - rho_lookalike^2 -> rho^2 - 0.0 * "
           "rho_lookalike^2", "gain", "self.rho ** 2 - self.rho_lookalike ** 2",
-          "self.rho ** 2 - 0.0 * self.rho_lookalike ** 2", path="lishield_guard/modelfit.py",
+          "self.rho ** 2 - 0.0 * self.rho_lookalike ** 2", path="lishield_guard/detector/fit.py",
           group="defences"),
     _rule("steady-gate-off", "_axis_sweeps: planes a steady square wave fits at rho >= "
           "LOOKALIKE_DOMINANT_RHO are refined like any other", "_axis_sweeps",
-          "if steady >= LOOKALIKE_DOMINANT_RHO:", "if False:", group="defences"),
+          "if steady >= LOOKALIKE_DOMINANT_RHO:", "if False:",
+          path="lishield_guard/detector/pipeline.py", group="defences"),
     _rule("screen-steady-gate-off", "screen_plane: a plane with stripes passes the first stage "
           "even when one steady square wave fits them at rho >= LOOKALIKE_DOMINANT_RHO",
           "screen_plane", "passed = steady is None or steady < LOOKALIKE_DOMINANT_RHO",
-          "passed = True", path="lishield_guard/screen.py", group="defences"),
+          "passed = True", path="lishield_guard/detector/screen.py", group="defences"),
     _rule("steady-gate-at-0.95", "LOOKALIKE_DOMINANT_RHO = 0.99 -> 0.95 (more planes gated)",
           None, "LOOKALIKE_DOMINANT_RHO = 0.99", "LOOKALIKE_DOMINANT_RHO = 0.95",
-          path="lishield_guard/modelfit.py", group="defences"),
+          path="lishield_guard/detector/fit.py", group="defences"),
     # --- thresholds and terms of the pass rules, changed in the one place both forms use
     _rule("grid-rho-strict", "grid_rule: rho >= sweep_min_rho -> rho > sweep_min_rho",
           "grid_rule", "(rho >= det.sweep_min_rho)", "(rho > det.sweep_min_rho)"),
@@ -137,7 +138,7 @@ MUTANTS: tuple[Mutant, ...] = (
           "(exact fits ignored)", "sweep_protected", "grid_rule(rho, alt, t, det) | fit_rule(",
           "grid_rule(rho, alt, t, det) | 0 * fit_rule(", path="lishield_guard/calibrate.py",
           extra=TABLE_TESTS),
-    _rule("detect-sweep-drops-fit", "detect.sweep_passes: only the grid rule (exact fits "
+    _rule("detect-sweep-drops-fit", "rules.sweep_passes: only the grid rule (exact fits "
           "ignored)", "sweep_passes", " or fit_passes(info.get(\"fit\"), det)", ""),
     # --- scan --resume
     Mutant("resume-rescans-all", "resume", "scan --resume reads no done keys: every input is "
@@ -201,7 +202,7 @@ def _env(copy: Path) -> dict[str, str]:
 
 def _check_imports_from(copy: Path) -> None:
     """The copy, not the editable install of the working tree, is what the tests import."""
-    code = ("import lishield_guard, lishield_guard.detect, lishield_guard.calibrate, "
+    code = ("import lishield_guard, lishield_guard.detector, lishield_guard.calibrate, "
             "lishield_guard.commands.scan; print(lishield_guard.__file__)")
     out = subprocess.run([sys.executable, "-c", code], cwd=copy, env=_env(copy),
                          capture_output=True, text=True)

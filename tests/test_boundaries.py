@@ -26,3 +26,32 @@ def test_every_module_has_a_docstring():
         if not (mod.__doc__ or "").strip():
             missing.append(info.name)
     assert not missing
+
+
+def test_detector_stages_do_not_import_the_orchestration():
+    """Dependencies point one way: the stage modules of `lishield_guard.detector` import
+    earlier stages and shared core modules, never the orchestration (`pipeline`, the package
+    itself) nor the tools built on it (calibration, scanning, the CLI)."""
+    import ast
+    from pathlib import Path
+
+    import lishield_guard.detector as pkg
+
+    banned = ("lishield_guard.detector.pipeline", "lishield_guard.calibrate",
+              "lishield_guard.scan", "lishield_guard.cli", "lishield_guard.commands")
+    bad = []
+    for path in sorted(Path(pkg.__file__).parent.glob("*.py")):
+        if path.stem in ("__init__", "pipeline"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+                if node.module == "lishield_guard.detector":
+                    names = [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            bad += [f"{path.name}: {n}" for n in names
+                    if n == "lishield_guard.detector" or n.startswith(banned)]
+    assert not bad

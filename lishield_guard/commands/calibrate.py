@@ -53,13 +53,14 @@ EVIDENCE_PREFIX = "ev9-"  # bump when image_record's layout changes (code edits 
 
 
 def _code_key() -> str:
-    """Hash of the core's source: cached evidence is only reused by the code that made it."""
+    """Hash of the core's source, the detector package's included: cached evidence is only
+    reused by the code that made it."""
     import lishield_guard
 
     root = Path(lishield_guard.__file__).parent
     h = hashlib.sha1()
-    for f in sorted(root.glob("*.py")):
-        h.update(f.name.encode())
+    for f in sorted([*root.glob("*.py"), *root.glob("detector/*.py")]):
+        h.update(f.relative_to(root).as_posix().encode())
         h.update(f.read_bytes())
     return h.hexdigest()[:12]
 

@@ -168,7 +168,7 @@ def detect_command(
       lishield-guard detect a.jpg b.png --json
       lishield-guard detect photo.jpg --explain --plot verdict.png
     """
-    from lishield_guard.detect import detect
+    from lishield_guard.detector import detect
 
     try:
         cfg = resolve_config(config, profile)

@@ -1,4 +1,4 @@
-"""The fast sweep path agrees with detect.decide, and the null model behaves."""
+"""The fast sweep path agrees with pipeline.decide, and the null model behaves."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from lishield_guard import calibrate as cal
 from lishield_guard.config import AppConfig, default_config
-from lishield_guard.detect import decide
+from lishield_guard.detector.pipeline import decide
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +38,7 @@ def _orthogonal_subset(settings, grid_levels: dict[str, tuple]) -> list[int]:
 @pytest.mark.timeout(1200)
 def test_candidate_table_agrees_with_decide(records):
     """Calibration's vectorised decision (candidate tables, fold and sweep tables) equals
-    `detect.decide` on every image, for every setting of a strength-2 orthogonal array of the
+    `pipeline.decide` on every image, for every setting of a strength-2 orthogonal array of the
     thresholds below (each `decide` call refits, so all 32 settings took 131 s on 2 cores;
     `test_rule_agreement` covers the pass rules themselves over random thresholds). Since the
     emitter-variant search the 8 take about 5-10 minutes on a shared machine."""
@@ -73,7 +73,7 @@ def test_candidate_table_agrees_with_decide(records):
 
 def _literal_sweep_row(row, det) -> bool:
     """`SWEEP_COLUMNS` row -> protected, the grid and exact-fit rules written out (not the
-    `detect.grid_rule` / `fit_rule` both calibration and detection call)."""
+    `rules.grid_rule` / `fit_rule` both calibration and detection call)."""
     rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_periods = (float(x) for x in row)
     grid = (rho >= det.sweep_min_rho and rho - alt >= det.sweep_min_margin
             and t >= det.sweep_min_coherence)
@@ -108,8 +108,8 @@ def test_cached_fit_tables_judged_as_the_rules_say(records):
     """Calibration's table verdicts (`sweep_protected`, `fold_protected`) on the real cached
     fits of the tiny sets equal the rules written out in this test, at the shipped and at lax
     settings. `test_candidate_table_agrees_with_decide` cannot see a rule changed in
-    detect.py (both of its sides call it); this test can, e.g. the look-alike margin dropped:
-    at the lax settings some real fits fail on that term alone (asserted)."""
+    detector/rules.py (both of its sides call it); this test can, e.g. the look-alike margin
+    dropped: at the lax settings some real fits fail on that term alone (asserted)."""
     cfg, recs = records
     n_pass = n_lookalike_only = 0
     for overrides in _TABLE_SETTINGS:

@@ -1,9 +1,9 @@
 """The pass rules against fixed expected verdicts and a literal restatement of each.
 
-Detection (`detect.sweep_passes`, `fold_passes`, `tone_fit_confirms`) and calibration's table
+Detection (`rules.sweep_passes`, `fold_passes`, `tone_fit_confirms`) and calibration's table
 form (`calibrate.sweep_protected`, `fold_protected`, `tone_confirmed`) both call the rule
-functions of detect.py (`grid_rule`, `fit_rule`, `fold_rule`, `tone_rule`), so comparing the
-two forms with each other cannot catch a rule changed in that one place. Each form is checked
+functions of detector/rules.py (`grid_rule`, `fit_rule`, `fold_rule`, `tone_rule`), so comparing
+the two forms with each other cannot catch a rule changed in that one place. Each form is checked
 here against (a) hand-computed verdicts at and around every threshold and (b) the rules
 written out below in plain Python (`_grid`, `_fit`, `_tone`, `_fold`), not imported.
 
@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 from lishield_guard.calibrate import fold_protected, sweep_protected, sweep_row, tone_confirmed
 from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, DetectorConfig
-from lishield_guard.detect import fold_passes, sweep_passes, tone_fit_confirms
+from lishield_guard.detector.rules import fold_passes, sweep_passes, tone_fit_confirms
 
 # The two constants the rules use, restated: the literal rules below use these numbers.
 TONE_RHO_FLOOR = 0.8  # config.FIT_RHO_FLOOR

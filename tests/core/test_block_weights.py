@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from lishield_guard import PRESETS
-from lishield_guard.fold import block_coherence_t, quiet_weights
-from lishield_guard.modelfit import pattern_knots, refine, render_rows
-from lishield_guard.profile import block_row_profiles, merge_blocks
+from lishield_guard.detector.fit import pattern_knots, refine, render_rows
+from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
+from lishield_guard.detector.sweep import block_coherence_t, quiet_weights
 
 
 @pytest.mark.parametrize("n_cols, blocks, sub", [(640, 8, 4), (1001, 8, 4), (37, 8, 4),
@@ -107,7 +107,7 @@ def test_refine_finds_led_behind_textured_columns(rng):
 
 
 def test_chroma_leak_geometry():
-    from lishield_guard.modelfit import chroma_leak
+    from lishield_guard.detector.fit import chroma_leak
 
     assert chroma_leak(np.array([1.0, 0.0, 0.0]), "R") == pytest.approx(0.0)
     assert chroma_leak(np.array([1.0, 1.0, 1.0]), "R") == pytest.approx(math.sqrt(2))
@@ -156,7 +156,7 @@ def test_without_colour_planes_no_leak_is_claimed(rng):
 
 def test_colour_verified_path_of_fit_passes():
     from lishield_guard.config import DetectorConfig
-    from lishield_guard.detect import fit_passes
+    from lishield_guard.detector.rules import fit_passes
 
     det = DetectorConfig(fit_min_rho=0.95, fit_min_gain=8.0, fit_min_rho_rgb=0.85,
                          fit_min_gain_rgb=1.0, fit_max_leak_rgb=0.3, sweep_min_coherence=3.0)
@@ -173,7 +173,7 @@ def test_periodic_path_of_fit_passes():
     """A fit whose frame holds two or more pattern periods passes at the lower _periodic
     thresholds; one of fewer periods needs the full gain; gain inf turns the path off."""
     from lishield_guard.config import PERIODIC_MIN_PERIODS, DetectorConfig
-    from lishield_guard.detect import fit_passes
+    from lishield_guard.detector.rules import fit_passes
 
     det = DetectorConfig(fit_min_rho=0.9, fit_min_gain=8.0, fit_min_rho_periodic=0.85,
                          fit_min_gain_periodic=2.0, sweep_min_coherence=3.0)

@@ -70,7 +70,7 @@ def test_pwm_dimming_is_not_a_barcode(make_led_image, pwm_hz):
 # The PWM cases above stop at "1 tone found, 2 needed" whatever the later stages do; the cases
 # below get past every other term of the fold, grid and exact-fit rules (asserted on the
 # evidence), so removing the look-alike margin, the gain's look-alike term or the per-plane
-# steady-square-wave gate (`modelfit.steady_rho` >= `LOOKALIKE_DOMINANT_RHO`) fails them.
+# steady-square-wave gate (`fit.steady_rho` >= `LOOKALIKE_DOMINANT_RHO`) fails them.
 # The first stage is off (screen_false_prob=None) so that the search under test runs whatever
 # the screen would clear on its own; 720 x 960 frames and one spec keep each under about 3 s.
 
@@ -104,13 +104,13 @@ def _rows_candidate(v) -> dict:
 def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike_margin(
         make_led_image, kind, freq_hz, level):
     """PWM dimming (500 Hz, duty 0.5) and a 1 kHz sinusoid: a steady square wave fits the rows
-    at rho >= `modelfit.LOOKALIKE_DOMINANT_RHO`, so the plane is not refined (the sweep entry
+    at rho >= `fit.LOOKALIKE_DOMINANT_RHO`, so the plane is not refined (the sweep entry
     carries ``steady_rho`` and no exact fit: catches the gate disabled). The tiled Table 1
     sequence 3 fits the stripes above ``sweep_min_rho`` with coherent column blocks; only the
     look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike).
     With the first stage on, `screen.screen_plane` clears the plane by the same test (catches
     that gate disabled)."""
-    from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO
+    from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO
 
     img = make_led_image(None, flicker=_flicker(kind, freq_hz, level), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)
@@ -239,7 +239,7 @@ _RGB_HIDDEN_IN_LUMA = {
 
 def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     from lishield_guard.decode import decode
-    from lishield_guard.detect import collect_evidence, decide
+    from lishield_guard.detector.pipeline import collect_evidence, decide
     from synth.dataset import render_item
 
     data, _ = render_item(_RGB_HIDDEN_IN_LUMA)
@@ -273,13 +273,13 @@ _RGB_HALF_LIT = {
 
 
 def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
-    import lishield_guard.modelfit as modelfit
+    import lishield_guard.detector.fit as fit_mod
     from synth.dataset import render_item
 
     data, desc = render_item(_RGB_HALF_LIT)
     assert desc["scene"] == {"scene": "skimage:coins"}
     assert detect(data, default_config()).protected
-    monkeypatch.setattr(modelfit, "MATCHED_REFIT", False)
+    monkeypatch.setattr(fit_mod, "MATCHED_REFIT", False)
     assert not detect(data, default_config()).protected
 
 

@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from lishield_guard import PRESETS, detect
-from lishield_guard.emitter import MIN_SWITCHING_HZ, cycles_range, emitter_variants
+from lishield_guard.detector.emitters import MIN_SWITCHING_HZ, cycles_range, emitter_variants
 
 
 def test_variants_cover_every_cyclic_order_and_both_phases():

@@ -7,7 +7,7 @@ import pytest
 from core_led_model import row_waveform
 
 from lishield_guard import PRESETS
-from lishield_guard.fold import candidate_periods, fold, fold_match, refine_period
+from lishield_guard.detector.fold import candidate_periods, fold, fold_match, refine_period
 
 
 def _profile(spec, *, row_rate_hz, switching_hz, n_rows=1200, rng=None, depth=0.05):

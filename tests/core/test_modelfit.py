@@ -11,8 +11,7 @@ import pytest
 from core_led_model import row_waveform
 
 from lishield_guard import PRESETS
-from lishield_guard.fold import sweep_match
-from lishield_guard.modelfit import (
+from lishield_guard.detector.fit import (
     HIGHPASS_CYCLES,
     _highpass,
     linearise,
@@ -22,6 +21,7 @@ from lishield_guard.modelfit import (
     render_rows,
     square_rows,
 )
+from lishield_guard.detector.sweep import sweep_match
 
 SCALE = (1 / 120_000, 4 / 30_000)  # cycles per row per Hz: the shipped row-rate range
 N_ROWS = 1080
@@ -178,7 +178,7 @@ def test_lookalike_finds_narrow_pulses_at_any_phase():
 def test_square_start_scores_every_phase_exactly_for_whole_cycles():
     """The start grid's Fourier-series correlation equals the time-domain correlation of the
     start it returns when the rows hold whole cycles (no high-pass: unit gain)."""
-    from lishield_guard.modelfit import _square_start
+    from lishield_guard.detector.fit import _square_start
 
     n, period = 800, 80.0
     rows = np.arange(n, dtype=float)
@@ -212,9 +212,10 @@ def test_fit_decides_where_the_grid_cannot(rng):
     """A seq3 capture holding seven periods under a 1.3-slot exposure: the binned grid's
     best fit does not pass the sweep thresholds, the exact model does (shipped config)."""
     from lishield_guard import default_config
-    from lishield_guard.barcode import scale_range_cpr_per_hz
-    from lishield_guard.detect import _axis_sweeps, _grid_passes, fit_passes
-    from lishield_guard.spectrum import PlaneAnalysis
+    from lishield_guard.detector.pipeline import _axis_sweeps
+    from lishield_guard.detector.rules import fit_passes, grid_passes
+    from lishield_guard.detector.tones import scale_range_cpr_per_hz
+    from lishield_guard.detector.tracks import PlaneAnalysis
 
     det = default_config().detector
     spec = PRESETS["table1-seq3"]
@@ -229,7 +230,7 @@ def test_fit_decides_where_the_grid_cannot(rng):
     fits = _axis_sweeps({"L": pa}, [("p", spec)], det, [2 * period])[spec.name]
     assert scale_range_cpr_per_hz(det)[0] > 0
     (info,) = fits
-    assert not _grid_passes(info, det)
+    assert not grid_passes(info, det)
     assert fit_passes(info["fit"], det), info["fit"]
     assert info["fit"]["period_rows"] == pytest.approx(period, rel=0.01)
 

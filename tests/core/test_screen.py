@@ -8,8 +8,8 @@ import pytest
 from skimage import data
 
 from lishield_guard import PRESETS, default_config, detect
-from lishield_guard.screen import screen_plane
-from lishield_guard.spectrum import PlaneAnalysis, Track
+from lishield_guard.detector.screen import screen_plane
+from lishield_guard.detector.tracks import PlaneAnalysis, Track
 
 FIRST_STAGE = "first stage"
 
@@ -47,8 +47,8 @@ def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
     3-row period; the first stage must not take it for LED stripes (it did: every such
     photo paid the whole pattern search, about 1 s)."""
     from lishield_guard.decode import decode
-    from lishield_guard.detect import _analyse
-    from lishield_guard.screen import jpeg_grid_cpr
+    from lishield_guard.detector.pipeline import analyse_plane
+    from lishield_guard.detector.screen import jpeg_grid_cpr
 
     rng = np.random.default_rng(12)
     big = cv2.resize(data.astronaut(), (4032, 3024), interpolation=cv2.INTER_CUBIC)
@@ -64,7 +64,7 @@ def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
     dec = decode(buf.tobytes(), limits=cfg.limits, max_rows=cfg.detector.max_decode_rows)
     grid = jpeg_grid_cpr(dec.format, dec.row_scale)
     assert dec.row_scale == pytest.approx(8 / 3) and min(abs(g - 1 / 3) for g in grid) < 1e-6
-    planes = [_analyse(np.ascontiguousarray(dec.rgb()[:, :, i]), axis, cfg, dec.row_scale)
+    planes = [analyse_plane(np.ascontiguousarray(dec.rgb()[:, :, i]), axis, cfg, dec.row_scale)
               for i in range(3) for axis in (0, 1)]
     det = cfg.detector
     assert any(screen_plane(pa, false_prob=det.screen_false_prob,
@@ -109,13 +109,13 @@ def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
     the columns passes on its own, and the capture the full cascade flags stays flagged (two
     such development captures were cleared before the halves were tested)."""
     from lishield_guard.decode import decode
-    from lishield_guard.detect import _analyse
+    from lishield_guard.detector.pipeline import analyse_plane
 
     cfg = default_config()
     det = cfg.detector
     img = make_led_image(PRESETS["table1-seq1"], switching_hz=300.0, lit_fraction=0.5,
                          ambient=0.5)
-    pa = _analyse(decode(img, limits=cfg.limits).luma, 0, cfg)
+    pa = analyse_plane(decode(img, limits=cfg.limits).luma, 0, cfg)
     on_all = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames)
     assert not on_all.passed
     halves = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames,

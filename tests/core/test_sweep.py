@@ -9,7 +9,8 @@ import pytest
 from core_led_model import row_waveform
 
 from lishield_guard import PRESETS
-from lishield_guard.fold import fold_match, sweep_match
+from lishield_guard.detector.fold import fold_match
+from lishield_guard.detector.sweep import sweep_match
 
 SCALE = (1 / 120_000, 4 / 30_000)  # cycles per row per Hz: the shipped row-rate range
 N_ROWS = 1080
@@ -133,7 +134,11 @@ def test_fit_periods_leave_two_slots_in_the_frame():
     """A small crop holds a fraction of a pattern: a smooth curve anything fits. Sweep and
     exact fit only try periods that leave two slots (two tones) in the frame."""
     from lishield_guard import default_config
-    from lishield_guard.detect import MIN_SLOTS_IN_FRAME, _frame_period_range, _period_range_rows
+    from lishield_guard.detector.pipeline import (
+        MIN_SLOTS_IN_FRAME,
+        _frame_period_range,
+        _period_range_rows,
+    )
 
     det = default_config().detector
     spec = PRESETS["table1-seq1"]

@@ -1,4 +1,12 @@
-"""detect(): decode an image and decide whether it carries a known policy barcode."""
+"""The one orchestration: run the stages in order on an image and turn their results into a Verdict.
+
+Detection (`detect`, `detect_decoded`) and calibration (`collect_evidence`, `decide`,
+`screen_specs`, `fold_fits`, `sweep_fits`) run the same stage sequence per axis, in order:
+row profiles and frequency tracks (`analyse_plane`: `profiles`, `tracks`), the first stage
+(`screen`), tone tracks (`tones`), folding (`fold`), the period sweep (`sweep`) and its
+exact-model refinement (`fit`), each judged by the pass rules of `rules`. The paper profile
+(`paper`, Algorithm 1) is dispatched from here too. Stage modules never import this one.
+"""
 
 from __future__ import annotations
 
@@ -10,28 +18,35 @@ from functools import cache
 
 import numpy as np
 
-from lishield_guard.barcode import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.config import (
     FIT_RHO_FLOOR,
-    PERIODIC_MIN_PERIODS,
     AppConfig,
     DetectorConfig,
     default_config,
 )
 from lishield_guard.decode import Decoded, decode
-from lishield_guard.emitter import cycles_range, emitter_variants, variant_label
-from lishield_guard.fold import candidate_periods, fold_match, refine_period, sweep_match
-from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
-from lishield_guard.paper import run_paper
-from lishield_guard.profile import block_row_profiles, merge_blocks
-from lishield_guard.screen import jpeg_grid_cpr, screen_plane
+from lishield_guard.detector.emitters import cycles_range, emitter_variants, variant_label
+from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
+from lishield_guard.detector.fold import candidate_periods, fold_match, refine_period
+from lishield_guard.detector.paper import run_paper
+from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
+from lishield_guard.detector.rules import (
+    fold_passes,
+    grid_passes,
+    sweep_passes,
+    tone_check_on,
+    tone_fit_confirms,
+)
+from lishield_guard.detector.screen import jpeg_grid_cpr, screen_plane
+from lishield_guard.detector.sweep import sweep_match
+from lishield_guard.detector.tones import SpecMatch, match_spec, scale_range_cpr_per_hz
+from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
 from lishield_guard.spec import BarcodeSpec
-from lishield_guard.spectrum import PlaneAnalysis, analyse_profiles
 from lishield_guard.verdict import Verdict
 
-__all__ = ["Evidence", "collect_evidence", "decide", "detect", "detect_decoded", "fit_passes",
-           "fit_rule", "fold_fits", "fold_passes", "fold_rule", "grid_rule", "spec_planes",
-           "sweep_fits", "sweep_passes", "tone_rule"]
+__all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decide", "detect",
+           "detect_decoded", "fold_fits", "scaled_detector", "screen_specs", "spec_planes",
+           "sweep_fits"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 MIN_ACROSS = 64  # fewer pixels across the lines cannot fill 8 column blocks of 8 pixels: the
@@ -159,8 +174,11 @@ def _band_cpr(config: AppConfig, row_scale: float = 1.0) -> tuple[float, float]:
     return min(freqs) * s_lo * row_scale, min(0.5, max(freqs) * s_hi * row_scale)
 
 
-def _analyse(plane: np.ndarray, axis: int, config: AppConfig,
-             row_scale: float = 1.0) -> PlaneAnalysis:
+def analyse_plane(plane: np.ndarray, axis: int, config: AppConfig,
+                  row_scale: float = 1.0) -> PlaneAnalysis:
+    """Row profiles and frequency tracks of one plane along ``axis`` (0: rows, 1: columns),
+    over the band the configured policies' tones can fall in at ``row_scale`` stored rows per
+    analysed row: the input of every later stage."""
     det = config.detector
     lo, hi = _band_cpr(config, row_scale)
     fine = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis,
@@ -213,7 +231,7 @@ class Evidence:
         return Evidence(axes, self.row_scale, self.orientation, self.format, self.skipped)
 
 
-def _scaled(det: DetectorConfig, row_scale: float) -> DetectorConfig:
+def scaled_detector(det: DetectorConfig, row_scale: float) -> DetectorConfig:
     """Detector settings whose scale range accounts for decoding at 1/row_scale."""
     if row_scale == 1.0:
         return det
@@ -256,26 +274,9 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         chans = spec_planes(spec, planes)
         if chans is None:
             continue
-        m = match_spec(spec, chans, det)
-        if (pid, spec) not in screened:
-            best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
-            steady = [r.steady_rho for pa in chans.values()
-                      if (r := screens[id(pa)]).steady_rho is not None]
-            if steady:
-                why = (f"the stripes are a steady square wave (look-alike rho="
-                       f"{min(steady):.3f} >= {LOOKALIKE_DOMINANT_RHO}): a PWM-dimmed or "
-                       f"mains-flickering light or a regular texture, not a barcode")
-            else:
-                why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
-                       f"track above the p={best.false_prob:g} noise threshold, "
-                       f"{det.screen_min_frames} needed"
-                       + ("" if det.screen_partial_false_prob is None else
-                          f"; in any half of the columns, {best.part_frames} at p="
-                          f"{det.screen_partial_false_prob:g}, "
-                          f"{det.screen_partial_min_frames} needed") + ")")
-            m = replace(m, protected=False, stage="first stage",
-                        reason=f"first stage: {why}; pattern search skipped")
-            out.append((pid, m))
+        m = match_spec(spec, chans, det)  # tone tracks
+        if (pid, spec) not in screened:  # the first stage cleared every plane of the spec
+            out.append((pid, _cleared_by_screen(m, chans, screens, det)))
             continue
         if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps(spec.name),
                                                                           det):
@@ -283,48 +284,83 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
                 f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
         if not m.protected:
-            info = _fold_info(spec, chans, periods(), det)
-            if info is not None and fold_passes(info, det):
-                reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
-                          f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
-                          f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
-                m = replace(m, protected=True, reason=reason, fold=info, stage="fold")
-            elif info is not None:
-                m = replace(m, fold=info, stage="fold")
+            m = _fold_stage(m, spec, _fold_info(spec, chans, periods(), det), det)
         if not m.protected and det.period_sweep:
-            fits = sweeps(spec.name)
-            passing = [f for f in fits if sweep_passes(f, det)]
-            sw = max(passing or fits, key=lambda f: (_grid_passes(f, det),
-                                                     f["rho"] - f["rho_lookalike"]),
-                     default=None)
-            if passing and not _grid_passes(sw, det):
-                fit = sw["fit"]
-                reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
-                          f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
-                          f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
-                          f"{fit['n_periods']:.2f} periods in the frame) "
-                          f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
-                          f"{fit['gain']:.1f}x "
-                          f"better than any steady square wave (look-alike rho="
-                          f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
-                          f"column block (t={fit['coherence_t']:.1f})"
-                          + ("" if fit.get("chroma_leak") is None else
-                             f" and in its own colour plane only (chroma leak "
-                             f"{fit['chroma_leak']:.2f})"))
-                m = replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
-            elif passing:
-                reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
-                          f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
-                          f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
-                          f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
-                          f"block (t={sw['coherence_t']:.1f})")
-                m = replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
-            elif sw is not None:
-                m = replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
+            m = _sweep_stage(m, spec, sweeps(spec.name), det)
         out.append((pid, m))
         if m.protected:  # the verdict is certain: later specs are not searched
             break
     return out
+
+
+def _cleared_by_screen(m: SpecMatch, chans: dict[str, PlaneAnalysis], screens: dict,
+                       det: DetectorConfig) -> SpecMatch:
+    """``m`` as the first stage left it: not protected, with the reason its planes failed."""
+    best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
+    steady = [r.steady_rho for pa in chans.values()
+              if (r := screens[id(pa)]).steady_rho is not None]
+    if steady:
+        why = (f"the stripes are a steady square wave (look-alike rho="
+               f"{min(steady):.3f} >= {LOOKALIKE_DOMINANT_RHO}): a PWM-dimmed or "
+               f"mains-flickering light or a regular texture, not a barcode")
+    else:
+        why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
+               f"track above the p={best.false_prob:g} noise threshold, "
+               f"{det.screen_min_frames} needed"
+               + ("" if det.screen_partial_false_prob is None else
+                  f"; in any half of the columns, {best.part_frames} at p="
+                  f"{det.screen_partial_false_prob:g}, "
+                  f"{det.screen_partial_min_frames} needed") + ")")
+    return replace(m, protected=False, stage="first stage",
+                   reason=f"first stage: {why}; pattern search skipped")
+
+
+def _fold_stage(m: SpecMatch, spec: BarcodeSpec, info: dict | None,
+                det: DetectorConfig) -> SpecMatch:
+    """``m`` after folding: protected when the best fold fit ``info`` passes `fold_passes`."""
+    if info is None:
+        return m
+    if not fold_passes(info, det):
+        return replace(m, fold=info, stage="fold")
+    reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
+              f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
+              f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
+    return replace(m, protected=True, reason=reason, fold=info, stage="fold")
+
+
+def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, fits: list[dict],
+                 det: DetectorConfig) -> SpecMatch:
+    """``m`` after the period sweep and its exact fits (one entry per channel, ``fits``):
+    protected when one passes `sweep_passes`; the stage named is the one that passed."""
+    passing = [f for f in fits if sweep_passes(f, det)]
+    sw = max(passing or fits, key=lambda f: (grid_passes(f, det),
+                                             f["rho"] - f["rho_lookalike"]),
+             default=None)
+    if sw is None:
+        return m
+    if not passing:
+        return replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
+    if not grid_passes(sw, det):
+        fit = sw["fit"]
+        reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
+                  f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
+                  f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
+                  f"{fit['n_periods']:.2f} periods in the frame) "
+                  f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
+                  f"{fit['gain']:.1f}x "
+                  f"better than any steady square wave (look-alike rho="
+                  f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
+                  f"column block (t={fit['coherence_t']:.1f})"
+                  + ("" if fit.get("chroma_leak") is None else
+                     f" and in its own colour plane only (chroma leak "
+                     f"{fit['chroma_leak']:.2f})"))
+        return replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
+    reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
+              f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
+              f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
+              f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
+              f"block (t={sw['coherence_t']:.1f})")
+    return replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
 
 
 def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
@@ -352,83 +388,6 @@ def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
 def _screen_passes(chans: dict[str, PlaneAnalysis] | None, screens: dict) -> bool:
     """Whether any plane carrying a spec's channels passed the first stage (`screen`)."""
     return chans is not None and any(screens[id(pa)].passed for pa in chans.values())
-
-
-def tone_check_on(det: DetectorConfig) -> bool:
-    """Whether tone tracks need an exact fit's confirmation (`tone_fit_confirms`): a finite
-    ``tone_min_fit_gain`` with the period sweep and the exact fit enabled."""
-    return det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit
-
-
-def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:
-    """Whether one spec's period-sweep entries on one axis (`_axis_sweeps`) confirm its tone
-    tracks: one of them has an exact-model fit passing `tone_rule`."""
-    return any(f.get("fit") is not None
-               and bool(tone_rule(f["fit"]["rho"], f["fit"]["gain"], f["fit"]["coherence_t"], det))
-               for f in fits)
-
-
-def sweep_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
-    the grid fit passes `grid_rule`, or its exact-model refinement passes `fit_passes`."""
-    return _grid_passes(info, det) or fit_passes(info.get("fit"), det)
-
-
-def _grid_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether the sweep's own (binned-grid) fit passes `grid_rule`."""
-    return bool(grid_rule(info["rho"], info["rho_lookalike"], info["coherence_t"], det))
-
-
-def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
-    """Whether an exact-model fit (`modelfit.ModelFit.to_dict`, or None) passes `fit_rule`."""
-    if fit is None:
-        return False
-    leak = fit.get("chroma_leak")
-    return bool(fit_rule(fit["rho"], fit["gain"], fit["coherence_t"], fit["n_periods"],
-                         math.inf if leak is None else leak, det))
-
-
-# The pass rules below are written once, over numbers or same-shape arrays (``&`` and ``|``
-# rather than ``and`` and ``or``): detection applies them to one fit, calibration
-# (`calibrate.sweep_protected` and friends) to whole tables of cached fits.
-
-
-def grid_rule(rho, rho_lookalike, coherence_t, det: DetectorConfig):
-    """Period-sweep grid fit: rho >= ``sweep_min_rho``, rho beats the stationary look-alike
-    by ``sweep_min_margin`` and the column blocks agree (coherence t >= ``sweep_min_coherence``).
-    """
-    return ((rho >= det.sweep_min_rho) & (rho - rho_lookalike >= det.sweep_min_margin)
-            & (coherence_t >= det.sweep_min_coherence))
-
-
-def fit_rule(rho, gain, coherence_t, n_periods, chroma_leak, det: DetectorConfig):
-    """Exact-model fit, with the exact fit enabled and coherence t >= ``sweep_min_coherence``:
-    rho and gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
-    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
-    thresholds; or (an RGB channel whose colour was measured: ``chroma_leak`` finite, inf
-    when not measured) the leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
-    ``_rgb`` thresholds."""
-    return (det.model_fit & (coherence_t >= det.sweep_min_coherence)
-            & (((rho >= det.fit_min_rho) & (gain >= det.fit_min_gain))
-               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit_min_rho_periodic)
-                  & (gain >= det.fit_min_gain_periodic))
-               | (np.isfinite(chroma_leak) & (chroma_leak <= det.fit_max_leak_rgb)
-                  & (rho >= det.fit_min_rho_rgb) & (gain >= det.fit_min_gain_rgb))))
-
-
-def tone_rule(rho, gain, coherence_t, det: DetectorConfig):
-    """Exact-model fit confirming tone tracks: rho >= `config.FIT_RHO_FLOOR`, coherence t >=
-    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
-    better than the best steady square wave)."""
-    return ((rho >= FIT_RHO_FLOOR) & (coherence_t >= det.sweep_min_coherence)
-            & (gain >= det.tone_min_fit_gain))
-
-
-def fold_rule(rho, rho_lookalike, fold_snr, det: DetectorConfig):
-    """Fold fit: rho >= ``fold_min_rho``, SNR >= ``fold_min_snr`` and rho beats the stationary
-    look-alike by ``fold_min_margin``."""
-    return ((rho >= det.fold_min_rho) & (fold_snr >= det.fold_min_snr)
-            & (rho - rho_lookalike >= det.fold_min_margin))
 
 
 def _related_periods(periods) -> tuple[float, ...]:
@@ -523,17 +482,23 @@ def _best_variants(infos: list[dict]) -> list[dict]:
     return list(best.values())
 
 
-def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
-    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
-    det = _scaled(config.detector, evidence.row_scale)
+def _screened_axes(evidence: Evidence, config: AppConfig):
+    """Per axis of ``evidence`` with luma: (axis name, planes, detector settings, the (policy
+    id, spec) pairs the first stage passes, their candidate periods), as `decide` sees them."""
+    det = scaled_detector(config.detector, evidence.row_scale)
     all_specs = [(p.id, s) for p in config.policies for s in p.specs]
-    out = []
     for axis_name, planes in evidence.axes.items():
         if "L" not in planes:
             continue
         _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
-        periods = _periods(planes["L"], specs, det)
+        yield axis_name, planes, det, specs, _periods(planes["L"], specs, det)
+
+
+def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
+    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
+    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
+    out = []
+    for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
             for info in sweeps[spec.name]:
@@ -541,23 +506,11 @@ def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     return out
 
 
-def fold_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a fold fit (`fold_fits` entry) passes `fold_rule` (evidence enough for a
-    verdict of protected)."""
-    return bool(fold_rule(info["rho"], info["rho_lookalike"], info["fold_snr"], det))
-
-
 def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
     """Unthresholded fold fits of every spec the first stage passes, on every axis (for
     calibration sweeps; the specs and candidate periods `decide` searches)."""
-    det = _scaled(config.detector, evidence.row_scale)
-    all_specs = [(p.id, s) for p in config.policies for s in p.specs]
     out = []
-    for axis_name, planes in evidence.axes.items():
-        if "L" not in planes:
-            continue
-        _, specs = screen_specs(planes, all_specs, det, evidence.grid_cpr)
-        periods = _periods(planes["L"], specs, det)
+    for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         for pid, spec in specs:
             chans = spec_planes(spec, planes)
             info = _fold_info(spec, chans, periods, det) if chans else None
@@ -627,36 +580,85 @@ def _too_small(shape: tuple[int, ...], axis: int) -> str | None:
     return None
 
 
-def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
-    """Every plane on every configured axis (for calibration sweeps; `detect` is lazier)."""
-    det = config.detector
-    axes = {}
-    skipped = []
-    has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
-    for axis in (0, 1) if det.orientations == "both" else (0,):
+def _analysed_axes(decoded: Decoded, config: AppConfig, timer: _Timer, skipped: list[str]):
+    """Per configured axis (rows, then columns), analysed on first use: (axis name, planes
+    holding luma ``"L"``, ``colour()`` adding the R, G, B planes when the image has colour and
+    returning the planes). Axes too small to analyse are named in ``skipped`` instead."""
+    for axis in (0, 1) if config.detector.orientations == "both" else (0,):
+        name = AXIS_NAMES[axis]
         if (why := _too_small(decoded.luma.shape, axis)) is not None:
-            skipped.append(f"{AXIS_NAMES[axis]}: {why}")
+            skipped.append(f"{name}: {why}")
             continue
-        planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
-        if has_rgb and decoded.is_color:
-            rgb = decoded.rgb()
-            planes.update({c: _analyse(rgb[:, :, i], axis, config, decoded.row_scale)
-                           for i, c in enumerate("RGB")})
-        axes[AXIS_NAMES[axis]] = planes
+        with timer("profile_luma"):
+            planes = {"L": analyse_plane(decoded.luma, axis, config, decoded.row_scale)}
+
+        def colour(axis=axis, planes=planes) -> dict[str, PlaneAnalysis]:
+            if decoded.is_color:
+                with timer("profile_color"):
+                    rgb = decoded.rgb()
+                    planes.update({c: analyse_plane(rgb[:, :, i], axis, config,
+                                                    decoded.row_scale)
+                                   for i, c in enumerate("RGB")})
+            return planes
+
+        yield name, planes, colour
+
+
+def collect_evidence(decoded: Decoded, config: AppConfig) -> Evidence:
+    """Every plane on every configured axis, analysed up front (for calibration sweeps;
+    `detect` analyses lazily, with the same `analyse_plane`)."""
+    skipped: list[str] = []
+    has_rgb = any(s.is_rgb for p in config.policies for s in p.specs)
+    axes = {name: colour() if has_rgb else planes
+            for name, planes, colour in _analysed_axes(decoded, config, _Timer(), skipped)}
     return Evidence(axes, decoded.row_scale, decoded.orientation, decoded.format,
                     tuple(skipped))
 
 
 def decide(evidence: Evidence, config: AppConfig) -> Verdict:
-    """The default profile's verdict from precomputed evidence (no decoding, no profiling)."""
-    det = _scaled(config.detector, evidence.row_scale)
+    """The default profile's verdict from precomputed evidence (no decoding, no profiling):
+    `_run_stages` over every plane of every axis, every spec at once."""
+    axes = ((name, planes, None) for name, planes in evidence.axes.items())
+    return _run_stages(axes, config, row_scale=evidence.row_scale, fmt=evidence.format,
+                       orientation=evidence.orientation, skipped=list(evidence.skipped),
+                       timer=_Timer(), lazy=False)
+
+
+def _run_stages(axes, config: AppConfig, *, row_scale: float, fmt: str, orientation: int,
+                skipped: list[str], timer: _Timer, lazy: bool) -> Verdict:
+    """The default profile's stages on each axis in turn (`_decide_axis`), and the Verdict:
+    the one orchestration of detection (`detect`, lazy) and of `decide` (calibration).
+
+    ``axes`` yields (axis name, planes, colour) as `_analysed_axes` does. Lazy: the mono specs
+    are matched on luma first, the RGB specs (with the colour planes, ``colour()``) only when
+    luma is not decisive, and the columns only when the rows found no barcode. Otherwise every
+    spec is matched at once on the planes given, on every axis.
+    """
+    det = scaled_detector(config.detector, row_scale)
     specs = [(p.id, s) for p in config.policies for s in p.specs]
-    candidates = []
-    for axis_name, planes in evidence.axes.items():
-        candidates += [(axis_name, pid, m)
-                       for pid, m in _decide_axis(planes, specs, det, evidence.grid_cpr)]
-    return _verdict(candidates, config, list(evidence.skipped), {}, evidence.orientation,
-                    evidence.format)
+    first = [(pid, s) for pid, s in specs if not (lazy and s.is_rgb)]
+    rgb = [(pid, s) for pid, s in specs if lazy and s.is_rgb]
+    grid = jpeg_grid_cpr(fmt, row_scale)
+    candidates: list[tuple[str, str, SpecMatch]] = []
+    for name, planes, colour in axes:
+        skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
+        with timer("match"):
+            screens: dict = {}  # luma is screened once, for the mono and the RGB specs
+            found = _decide_axis(planes, first, det, grid, screens)
+        if rgb and not any(m.protected for _, m in found):
+            # Colour planes whenever luma is not decisive: an RGB barcode's channels can
+            # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
+            planes = colour()
+            with timer("match"):
+                found += _decide_axis(planes, rgb, det, grid, screens)
+        elif rgb:
+            skipped.append(f"{name}: colour planes (luma verdict certain)")
+        candidates += [(name, pid, m) for pid, m in found]
+        if lazy and any(m.protected for _, m in found):
+            if name == AXIS_NAMES[0] and det.orientations == "both":
+                skipped.append("columns: verdict certain from rows")
+            break
+    return _verdict(candidates, config, skipped, timer.ms, orientation, fmt)
 
 
 def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
@@ -688,47 +690,14 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
 
 
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
-    det = _scaled(config.detector, decoded.row_scale)
+    """`_run_stages`, lazily, on the planes of a decoded image analysed as they are needed."""
     skipped: list[str] = []
-    specs = [(p.id, s) for p in config.policies for s in p.specs]
-    mono = [(pid, s) for pid, s in specs if not s.is_rgb]
-    rgb = [(pid, s) for pid, s in specs if s.is_rgb]
-    axes = (0, 1) if det.orientations == "both" else (0,)
-    grid = jpeg_grid_cpr(decoded.format, decoded.row_scale)
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
-    if decoded.orientation in (5, 6, 7, 8) and det.orientations == "both":
+    if decoded.orientation in (5, 6, 7, 8) and config.detector.orientations == "both":
         skipped.append(f"EXIF orientation {decoded.orientation}: stored rows are sensor rows, "
                        f"analysed first")
-    candidates: list[tuple[str, str, SpecMatch]] = []
-    for axis in axes:
-        name = AXIS_NAMES[axis]
-        if (why := _too_small(decoded.luma.shape, axis)) is not None:
-            skipped.append(f"{name}: {why}")
-            continue
-        with timer("profile_luma"):
-            planes = {"L": _analyse(decoded.luma, axis, config, decoded.row_scale)}
-        skipped.extend(f"{name}: {s}" for s in planes["L"].skipped)
-        with timer("match"):
-            screens: dict = {}  # luma is screened once, for the mono and the RGB specs
-            found = _decide_axis(planes, mono, det, grid, screens)
-        if rgb and not any(m.protected for _, m in found):
-            # Colour planes whenever luma is not decisive: an RGB barcode's channels can
-            # cancel in luma (measured: gating them on luma stripes lost 27/400 positives).
-            if decoded.is_color:
-                with timer("profile_color"):
-                    colour = decoded.rgb()
-                    planes.update({c: _analyse(colour[:, :, i], axis, config,
-                                               decoded.row_scale)
-                                   for i, c in enumerate("RGB")})
-            with timer("match"):
-                found += _decide_axis(planes, rgb, det, grid, screens)
-        elif rgb:
-            skipped.append(f"{name}: colour planes (luma verdict certain)")
-        candidates += [(name, pid, m) for pid, m in found]
-        if any(m.protected for _, m in found):
-            if axis == 0 and len(axes) > 1:
-                skipped.append("columns: verdict certain from rows")
-            break
-    return _verdict(candidates, config, skipped, timer.ms, decoded.orientation, decoded.format)
+    return _run_stages(_analysed_axes(decoded, config, timer, skipped), config,
+                       row_scale=decoded.row_scale, fmt=decoded.format,
+                       orientation=decoded.orientation, skipped=skipped, timer=timer, lazy=True)

@@ -1,7 +1,7 @@
 """First stage: clear planes with no column-coherent periodic stripes before any pattern search.
 
 An ordinary photo under steady light has no row signal that every column block shares. The
-short-time tracks (`spectrum.analyse_profiles`) already test each frame's strongest peak
+short-time tracks (`tracks.analyse_profiles`) already test each frame's strongest peak
 against the residual between column blocks; under noise a frame passes at threshold
 ``peak_threshold(p)`` with probability p. At a loose p (0.01 by default, against 1e-5 for the
 tone tracks) a plane passes on any of three pieces of evidence, tried cheapest first:
@@ -15,7 +15,7 @@ tone tracks) a plane passes on any of three pieces of evidence, tried cheapest f
    the peaks are tested against (with half the blocks lit, the ratio stays near
    n_blocks - 1 however deep the stripes); scene texture confined to part of the frame does
    the same to a faint light that covers all of it. So each half of the columns (left,
-   centre, right; 8 of 16 sub-blocks) is tested on its own (`spectrum.part_tracks`), at a
+   centre, right; 8 of 16 sub-blocks) is tested on its own (`tracks.part_tracks`), at a
    stricter ``partial_false_prob`` shared by the three halves and ``partial_min_frames``
    frames.
 
@@ -30,8 +30,8 @@ column-coherent pattern too: frames whose peak sits on a harmonic of that grid
 (`jpeg_grid_cpr`, at the decoding scale) are not counted.
 
 A plane that has stripes is then asked whether they are *steady*: when one stationary square
-wave (any frequency, duty, phase and exposure: `modelfit.lookalike_rho`) fits its rows at rho
->= `modelfit.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
+wave (any frequency, duty, phase and exposure: `fit.lookalike_rho`) fits its rows at rho
+>= `fit.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
 or a regular texture, and no barcode could explain the rows well enough to pass even the
 laxest gain rule; the plane is cleared as well.
 """
@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lishield_guard.modelfit import LOOKALIKE_DOMINANT_RHO, steady_rho
-from lishield_guard.spectrum import PlaneAnalysis, Track, part_tracks, peak_threshold
+from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, steady_rho
+from lishield_guard.detector.tracks import PlaneAnalysis, Track, part_tracks, peak_threshold
 
 __all__ = ["PARTS", "ScreenResult", "jpeg_grid_cpr", "screen_plane"]
 

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lishield_guard.config import DetectorConfig
+from lishield_guard.detector.tracks import PlaneAnalysis
 from lishield_guard.spec import BarcodeSpec
-from lishield_guard.spectrum import PlaneAnalysis
 
 __all__ = ["SpecMatch", "match_spec", "scale_range_cpr_per_hz"]
 

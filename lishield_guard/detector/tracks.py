@@ -30,9 +30,10 @@ import numpy as np
 import scipy.fft
 from scipy.ndimage import uniform_filter1d
 
-from lishield_guard.profile import detrend_profiles
+from lishield_guard.detector.profiles import detrend_profiles
 
-__all__ = ["PlaneAnalysis", "Track", "analyse_profiles", "frequency_tracks", "part_tracks", "peak_threshold"]
+__all__ = ["PlaneAnalysis", "Track", "analyse_profiles", "frequency_tracks", "part_tracks",
+           "peak_threshold"]
 
 WINDOW_ROWS = (32, 64, 128, 256, 512)  # short windows see one symbol, long ones resolve tones
 HOP_FRACTION = 0.25

@@ -1,6 +1,6 @@
 """Exact-model fit: the barcode's light, integrated over each row's exposure, fitted continuously.
 
-The period sweep (`fold.sweep_match`) correlates the rows with a bank of binned, box-smoothed
+The period sweep (`sweep.sweep_match`) correlates the rows with a bank of binned, box-smoothed
 templates on a grid of (period, c_1, exposure, shift). A grid is coarse where it matters: a
 slot holding seven cycles of its tone drifts a whole cycle between neighbouring periods, and a
 log-domain template misfits strong stripes (the log of a box-smoothed square is not a box-smoothed
@@ -37,8 +37,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
-from lishield_guard.emitter import cycles_range, phase_mode
-from lishield_guard.fold import (
+from lishield_guard.detector.emitters import cycles_range, phase_mode
+from lishield_guard.detector.sweep import (
     block_coherence_t,
     highpass_gain,
     highpass_gain_at,
@@ -356,11 +356,11 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     Parameters
     ----------
     blocks_log : ndarray of shape (n_blocks, n_rows)
-        Log contrast per column block (`spectrum.PlaneAnalysis.blocks`).
+        Log contrast per column block (`tracks.PlaneAnalysis.blocks`).
     spec, channel : BarcodeSpec, str
         The template to fit.
     starts : sequence of (rho, period_rows, cycles_f1, phase_slots, exposure_slots)
-        Grid fits to start from (`fold.SweepMatch.starts`).
+        Grid fits to start from (`sweep.SweepMatch.starts`).
     period_range_rows : (float, float)
         Physically possible pattern periods M / f_B, rows.
     scale_range_cpr_per_hz : (float, float)
