@@ -52,6 +52,14 @@ def resolve_config(config: Path | None, profile: str | None) -> AppConfig:
     return cfg
 
 
+def _num(value) -> str:
+    """A stage result's value as printed: floats to 4 significant digits, or whole from 10^4
+    (results are stored unrounded), everything else as is."""
+    if not isinstance(value, float):
+        return str(value)
+    return f"{value:.0f}" if abs(value) >= 1e4 else f"{value:.4g}"
+
+
 def _describe(v, label: str, *, explain: bool) -> str:
     d = v.to_dict()
     ev = v.evidence or {}
@@ -91,16 +99,19 @@ def _describe(v, label: str, *, explain: bool) -> str:
             for ch, hz in (best.get("matched_hz") or {}).items():
                 tones = ", ".join(f"{f:g} Hz ({f * sigma:.4f} c/row)" for f in hz) or "none"
                 lines.append(f"    {ch}: matched {tones}")
-            lines.append(f"    purity {best.get('purity')}  switches {best.get('switches')}"
-                         f"  occupancy {best.get('occupancy')}")
+            occupancy = {c: "[" + ", ".join(_num(o) for o in v) + "]"
+                         for c, v in (best.get("occupancy") or {}).items()}
+            lines.append(f"    purity {_num(best.get('purity'))}  switches "
+                         f"{best.get('switches')}  occupancy "
+                         + ", ".join(f"{c} {o}" for c, o in occupancy.items()))
             for stage in ("fold", "sweep"):  # template fits: folded, and tiled over the frame
                 info = best.get(stage)
                 if info:
                     lines.append(f"    {stage}: " + ", ".join(
-                        f"{k} {v}" for k, v in info.items() if k not in ("spec", "fit")))
+                        f"{k} {_num(v)}" for k, v in info.items() if k not in ("spec", "fit")))
                 if info and info.get("fit"):  # the sweep's exact-model refinement
                     lines.append("    exact fit: " + ", ".join(
-                        f"{k} {v}" for k, v in info["fit"].items() if k != "spec"))
+                        f"{k} {_num(v)}" for k, v in info["fit"].items() if k != "spec"))
             for c in ev.get("candidates", []):
                 lines.append(f"    candidate {c.get('axis')}/{c.get('spec')}: "
                              f"{c.get('n_matched')}/{c.get('required')} ({c.get('reason')})")

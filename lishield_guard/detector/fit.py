@@ -125,17 +125,17 @@ class ModelFit:
 
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence."""
-        return {"spec": self.spec, "channel": self.channel, "rho": round(self.rho, 4),
+        return {"spec": self.spec, "channel": self.channel, "rho": float(self.rho),
                 "rho_lookalike": (None if self.rho_lookalike is None
-                                  else round(self.rho_lookalike, 4)),
-                "gain": round(self.gain, 3),
-                "period_rows": round(self.period_rows, 3),
-                "cycles_per_slot_f1": round(self.cycles_f1, 3),
-                "phase_slots": round(self.phase_slots, 3),
-                "exposure_slots": round(self.exposure_slots, 3),
-                "coherence_t": round(self.coherence_t, 2), "n_periods": round(self.n_periods, 2),
+                                  else float(self.rho_lookalike)),
+                "gain": float(self.gain),
+                "period_rows": float(self.period_rows),
+                "cycles_per_slot_f1": float(self.cycles_f1),
+                "phase_slots": float(self.phase_slots),
+                "exposure_slots": float(self.exposure_slots),
+                "coherence_t": float(self.coherence_t), "n_periods": float(self.n_periods),
                 "chroma_leak": (None if self.chroma_leak is None
-                                else round(self.chroma_leak, 4)),
+                                else float(self.chroma_leak)),
                 "domain": self.domain}
 
 

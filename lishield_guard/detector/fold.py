@@ -52,11 +52,11 @@ class FoldMatch:
 
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence."""
-        return {"spec": self.spec, "rho": round(self.rho, 4),
-                "rho_lookalike": round(self.rho_lookalike, 4),
-                "period_rows": round(self.period_rows, 3),
-                "cycles_per_slot_f1": round(self.cycles_f1, 3),
-                "fold_snr": round(self.fold_snr, 2), "n_periods": round(self.n_periods, 2)}
+        return {"spec": self.spec, "rho": float(self.rho),
+                "rho_lookalike": float(self.rho_lookalike),
+                "period_rows": float(self.period_rows),
+                "cycles_per_slot_f1": float(self.cycles_f1),
+                "fold_snr": float(self.fold_snr), "n_periods": float(self.n_periods)}
 
 
 def candidate_periods(x: np.ndarray, *, min_rows: float, max_rows: float, n: int = 4

@@ -60,14 +60,14 @@ class SweepMatch:
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence (f_B and row rate implied by the fit, the
         latter as if the image was not resized)."""
-        return {"spec": self.spec, "rho": round(self.rho, 4),
-                "rho_lookalike": round(self.rho_lookalike, 4),
-                "period_rows": round(self.period_rows, 3),
-                "cycles_per_slot_f1": round(self.cycles_f1, 3),
-                "switching_hz": round(self.switching_hz, 1),
-                "row_rate_hz_if_not_resized": round(self.row_rate_hz),
-                "exposure_slots": self.exposure_slots,
-                "coherence_t": round(self.coherence_t, 2), "n_periods": round(self.n_periods, 2)}
+        return {"spec": self.spec, "rho": float(self.rho),
+                "rho_lookalike": float(self.rho_lookalike),
+                "period_rows": float(self.period_rows),
+                "cycles_per_slot_f1": float(self.cycles_f1),
+                "switching_hz": float(self.switching_hz),
+                "row_rate_hz_if_not_resized": float(self.row_rate_hz),
+                "exposure_slots": float(self.exposure_slots),
+                "coherence_t": float(self.coherence_t), "n_periods": float(self.n_periods)}
 
 
 @lru_cache(maxsize=64)

@@ -85,9 +85,9 @@ class SpecMatch:
         return {"spec": self.spec, "sigma_cpr_per_hz": self.sigma_cpr_per_hz,
                 "row_rate_hz_if_not_resized": (1.0 / self.sigma_cpr_per_hz
                                                if self.sigma_cpr_per_hz > 0 else None),
-                "occupancy": {c: [round(o, 4) for o in v] for c, v in self.occupancy.items()},
+                "occupancy": {c: [float(o) for o in v] for c, v in self.occupancy.items()},
                 "matched_hz": self.matched, "n_matched": self.n_matched,
-                "required": self.required, "purity": round(self.purity, 4),
+                "required": self.required, "purity": float(self.purity),
                 "switches": self.switches, "reason": self.reason, "fold": self.fold,
                 "sweep": self.sweep, "stage": self.stage}
 
