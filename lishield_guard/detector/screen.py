@@ -118,25 +118,22 @@ def _hits(track: Track, false_prob: float, grid_cpr: tuple[float, ...]) -> np.nd
     return hits
 
 
-def _count(tracks: tuple[Track, ...], false_prob: float, grid_cpr: tuple[float, ...]
-           ) -> tuple[int, int, float]:
-    """Most frames above the threshold at ``false_prob`` in any one track, that track's window
-    length and its hits' median frequency (cycles per row); grid frequencies do not count."""
+def _count(tracks: tuple[Track, ...], hits: list[np.ndarray]) -> tuple[int, int, float]:
+    """Most hits (`_hits`, per track) in any one track, that track's window length and its
+    hits' median frequency (cycles per row)."""
     best, best_w, best_f = 0, 0, 0.0
-    for track in tracks:
-        hits = _hits(track, false_prob, grid_cpr)
-        count = int(np.count_nonzero(hits))
+    for track, h in zip(tracks, hits, strict=True):
+        count = int(np.count_nonzero(h))
         if count > best:
             best, best_w = count, track.window_rows
-            best_f = float(np.median(track.freq_cpr[hits]))
+            best_f = float(np.median(track.freq_cpr[h]))
     return best, best_w, best_f
 
 
-def _coincident(tracks: tuple[Track, ...], false_prob: float, grid_cpr: tuple[float, ...]
-                ) -> float | None:
-    """A frequency (cycles per row) where frames above the threshold of two tracks of
-    different window lengths agree within one bin of the longer window; None when none do."""
-    found = [(t.window_rows, t.freq_cpr[_hits(t, false_prob, grid_cpr)]) for t in tracks]
+def _coincident(tracks: tuple[Track, ...], hits: list[np.ndarray]) -> float | None:
+    """A frequency (cycles per row) where hits (`_hits`, per track) of two tracks of different
+    window lengths agree within one bin of the longer window; None when none do."""
+    found = [(t.window_rows, t.freq_cpr[h]) for t, h in zip(tracks, hits, strict=True)]
     found = [(w, f) for w, f in found if f.size]
     for i, (w_a, f_a) in enumerate(found):
         for w_b, f_b in found[i + 1:]:
@@ -148,9 +145,7 @@ def _coincident(tracks: tuple[Track, ...], false_prob: float, grid_cpr: tuple[fl
 
 
 PARTS = ("left", "centre", "right")
-PART_PAD_FACTOR = 4  # counting frames needs no fine peak placement (`frequency_tracks`)
-
-
+PART_PAD_FACTOR = 4  # counting frames needs no fine peak placement (`part_tracks`)
 PART_BLOCKS = 16  # column sub-blocks the halves are drawn from (8 per half: as many
 #                   degrees of freedom as the test on all blocks)
 
@@ -171,7 +166,9 @@ def _best_part(analysis: PlaneAnalysis, false_prob: float, grid_cpr: tuple[float
                          pad_factor=PART_PAD_FACTOR)
     best = (None, 0, 0, 0.0)
     for name in PARTS:
-        count, w, f = _count(tracks[name], false_prob / len(PARTS), grid_cpr)
+        part = tracks[name]
+        count, w, f = _count(part, [_hits(t, false_prob / len(PARTS), grid_cpr)
+                                    for t in part])
         if count > best[1]:
             best = (name, count, w, f)
     return best
@@ -209,10 +206,11 @@ def screen_plane(analysis: PlaneAnalysis, *, false_prob: float | None, min_frame
     """
     if false_prob is None:
         return ScreenResult(True, -1, 0, 0.0)
-    best, best_w, freq = _count(analysis.tracks, false_prob, grid_cpr)
+    hits = [_hits(t, false_prob, grid_cpr) for t in analysis.tracks]
+    best, best_w, freq = _count(analysis.tracks, hits)
     via, part_frames = "one track", 0
     if best < min_frames:
-        freq = _coincident(analysis.tracks, false_prob, grid_cpr)
+        freq = _coincident(analysis.tracks, hits)
         via = "two windows"
     if best < min_frames and freq is None:
         part = None

@@ -182,8 +182,8 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
                          contrast.astype(np.float32), fine, band)
 
 
-def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], false_prob: float,
-                     pad_factor: int = PAD_FACTOR) -> tuple[np.ndarray, tuple[Track, ...]]:
+def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], false_prob: float
+                     ) -> tuple[np.ndarray, tuple[Track, ...]]:
     """The common row signal of some column blocks and its tracks, one per window length.
 
     Parameters
@@ -195,10 +195,6 @@ def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], fal
         0.45).
     false_prob : float
         Probability that a frame of pure noise passes the significance test.
-    pad_factor : int
-        Zero padding of each frame's FFT (a power of 2): 8 places peaks to 1/16 of a bin
-        for the pattern search; 2 loses at most about 0.4 dB of a peak's power, enough to
-        count significant frames.
 
     Returns
     -------
@@ -208,19 +204,51 @@ def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], fal
         One per window length of `WINDOW_ROWS` that fits the rows and the band.
     """
     nb, n_rows = contrast.shape
-    lo, hi = band_cpr[0], min(band_cpr[1], 0.45)
     common = contrast.mean(axis=0)
     resid = contrast - common
     noise_scale = 1.0 / ((nb - 1) * nb)
-    tracks = []
+    return common, tuple(_track(common, resid, w, t_lo, hi, false_prob, noise_scale)
+                         for w, t_lo, hi in _windows(n_rows, band_cpr))
+
+
+def _windows(n_rows: int, band_cpr: tuple[float, float]) -> list[tuple[int, float, float]]:
+    """(window length, lowest, highest frequency in cycles per row) of every window of
+    `WINDOW_ROWS` that fits ``n_rows`` and holds `MIN_CYCLES` of a frequency in the band (its
+    top capped at 0.45)."""
+    lo, hi = band_cpr[0], min(band_cpr[1], 0.45)
+    out = []
     for w in WINDOW_ROWS:
         if w > n_rows:
             break
         t_lo = max(lo, MIN_CYCLES / w)
-        if t_lo >= hi:
-            continue
-        tracks.append(_track(common, resid, w, t_lo, hi, false_prob, noise_scale, pad_factor))
-    return common, tuple(tracks)
+        if t_lo < hi:
+            out.append((w, t_lo, hi))
+    return out
+
+
+def _mask_grid(power: np.ndarray, nfft: int, w: int) -> None:
+    """Zero, in place, the bins of frame power spectra (``nfft``-point, window ``w``) near the
+    JPEG block grid's frequencies (`JPEG_GRID_CPR`)."""
+    freqs = np.arange(power.shape[-1]) / nfft
+    for g in JPEG_GRID_CPR:
+        power[..., np.abs(freqs - g) <= max(JPEG_MASK_REL * g, 1.0 / w)] = 0.0
+
+
+def _strongest(power: np.ndarray, noise: np.ndarray, k_lo: int, k_hi: int, pad_factor: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each frame's strongest bin of ``power`` (padded grid) in [k_lo, k_hi], its power and its
+    ratio to ``noise`` (the unpadded grid, interpolated linearly); the ratio is 0 on the
+    band's edge or without power. Returns (bin, peak power, snr), each of shape (n_frames,)."""
+    k = power[:, k_lo: k_hi + 1].argmax(axis=1) + k_lo
+    rows = np.arange(power.shape[0])
+    peak = power[rows, k]
+    edge = (k <= k_lo) | (k >= k_hi)
+    pos = k / pad_factor
+    i0 = np.minimum(pos.astype(int), noise.shape[1] - 2)
+    frac = pos - i0
+    floor = noise[rows, i0] * (1.0 - frac) + noise[rows, i0 + 1] * frac
+    snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(floor, 1e-300))
+    return k, peak, snr
 
 
 def part_tracks(blocks: np.ndarray, parts: dict[str, slice], *, band_cpr: tuple[float, float],
@@ -250,16 +278,10 @@ def part_tracks(blocks: np.ndarray, parts: dict[str, slice], *, band_cpr: tuple[
         The tracks of each part, one per window length that fits.
     """
     n_blocks, n_rows = blocks.shape
-    lo, hi = band_cpr[0], min(band_cpr[1], 0.45)
     bounds = {name: cols.indices(n_blocks)[:2] for name, cols in parts.items()}
     edges = sorted({e for ab in bounds.values() for e in ab})
     out: dict[str, list[Track]] = {name: [] for name in parts}
-    for w in WINDOW_ROWS:
-        if w > n_rows:
-            break
-        t_lo = max(lo, MIN_CYCLES / w)
-        if t_lo >= hi:
-            continue
+    for w, t_lo, hi in _windows(n_rows, band_cpr):
         hop = max(1, int(w * HOP_FRACTION))
         nfft = pad_factor * w
         fr = _frames(blocks, w, hop)
@@ -272,10 +294,6 @@ def part_tracks(blocks: np.ndarray, parts: dict[str, slice], *, band_cpr: tuple[
         pieces = {(a, b): (spec[a:b].sum(axis=0), power[a:b].sum(axis=0))
                   for a, b in zip(edges[:-1], edges[1:], strict=False)}
         n_bins = (k_hi - k_lo) / pad_factor
-        freqs = np.arange(top) / nfft
-        grid_mask = np.zeros(top, dtype=bool)
-        for g in JPEG_GRID_CPR:
-            grid_mask |= np.abs(freqs - g) <= max(JPEG_MASK_REL * g, 1.0 / w)
         for name, (a, b) in bounds.items():
             nb = b - a
             own = [v for (pa, pb), v in pieces.items() if a <= pa and pb <= b]
@@ -284,16 +302,8 @@ def part_tracks(blocks: np.ndarray, parts: dict[str, slice], *, band_cpr: tuple[
             spread = sum(v[1] for v in own) - nb * common[..., ::pad_factor]
             noise = uniform_filter1d(np.maximum(spread, 0.0), size=3, axis=-1,
                                      mode="nearest") / ((nb - 1) * nb)
-            common[:, grid_mask] = 0.0
-            k = common[:, k_lo: k_hi + 1].argmax(axis=1) + k_lo
-            rows = np.arange(common.shape[0])
-            peak = common[rows, k]
-            edge = (k <= k_lo) | (k >= k_hi)
-            pos = k / pad_factor
-            i0 = np.minimum(pos.astype(int), noise.shape[1] - 2)
-            frac = pos - i0
-            floor = noise[rows, i0] * (1.0 - frac) + noise[rows, i0 + 1] * frac
-            snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(floor, 1e-300))
+            _mask_grid(common, nfft, w)
+            k, _, snr = _strongest(common, noise, k_lo, k_hi, pad_factor)
             thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=nb)
             out[name].append(Track(w, float(t_lo), float(hi), k / nfft, snr, thr,
                                    float(n_bins), int(nb)))
@@ -315,29 +325,24 @@ def peak_threshold(false_prob: float, *, n_bins: float, n_blocks: int) -> float:
 
 
 def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
-           false_prob: float, noise_scale: float, pad_factor: int = PAD_FACTOR) -> Track:
+           false_prob: float, noise_scale: float) -> Track:
     hop = max(1, int(w * HOP_FRACTION))
     win = np.hanning(w)
-    nfft = pad_factor * w
+    nfft = PAD_FACTOR * w
     fc = _frames(common, w, hop)
     fc = (fc - fc.mean(axis=-1, keepdims=True)) * win
     spec = np.abs(scipy.fft.rfft(fc.astype(np.float32), nfft, axis=-1)).astype(np.float64) ** 2
     fr = _frames(resid, w, hop)
     fr = ((fr - fr.mean(axis=-1, keepdims=True)) * win).astype(np.float32)
     # the noise floor is smooth: estimated on the unpadded grid (3 bins, as wide as the
-    # padded grid's 2 pad_factor + 1) and interpolated onto the padded one
+    # padded grid's 2 PAD_FACTOR + 1) and interpolated onto the padded one
     coarse = (np.abs(scipy.fft.rfft(fr, w, axis=-1)) ** 2).sum(axis=0) * (noise_scale * 1.0)
     coarse = uniform_filter1d(coarse.astype(np.float64), size=3, axis=-1, mode="nearest")
-    freqs = np.arange(spec.shape[1]) / nfft
     k_lo = int(np.ceil(lo * nfft))
     k_hi = int(np.floor(hi * nfft))
-    for g in JPEG_GRID_CPR:
-        spec[:, np.abs(freqs - g) <= max(JPEG_MASK_REL * g, 1.0 / w)] = 0.0
-    band = spec[:, k_lo: k_hi + 1]
-    k = band.argmax(axis=1) + k_lo
+    _mask_grid(spec, nfft, w)
+    k, peak, snr = _strongest(spec, coarse, k_lo, k_hi, PAD_FACTOR)
     rows = np.arange(spec.shape[0])
-    peak = spec[rows, k]
-    edge = (k <= k_lo) | (k >= k_hi)
     # parabolic interpolation on log power around the peak bin
     km = np.clip(k - 1, 0, spec.shape[1] - 1)
     kp = np.clip(k + 1, 0, spec.shape[1] - 1)
@@ -348,14 +353,6 @@ def _track(common: np.ndarray, resid: np.ndarray, w: int, lo: float, hi: float,
         delta = np.where(den < 0, 0.5 * (a - c) / np.where(den < 0, den, -1.0), 0.0)
     delta = np.clip(delta, -0.5, 0.5)
     freq = (k + delta) / nfft
-    n_bins = (k_hi - k_lo) / pad_factor
-    nb = resid.shape[0]
-    pos = k / pad_factor  # the peak bin on the unpadded grid (linear interpolation)
-    i0 = np.minimum(pos.astype(int), coarse.shape[1] - 2)
-    frac = pos - i0
-    noise = coarse[rows, i0] * (1.0 - frac) + coarse[rows, i0 + 1] * frac
-    snr = np.where(edge | ~(peak > 0), 0.0, peak / np.maximum(noise, 1e-300))
-    thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=nb)
-    return Track(w, float(lo), float(hi), freq, snr, thr, float(n_bins), int(nb))
-
-
+    n_bins = (k_hi - k_lo) / PAD_FACTOR
+    thr = peak_threshold(false_prob, n_bins=n_bins, n_blocks=resid.shape[0])
+    return Track(w, float(lo), float(hi), freq, snr, thr, float(n_bins), int(resid.shape[0]))
