@@ -38,7 +38,9 @@ from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
 from lishield_guard.detector.emitters import cycles_range, phase_mode
+from lishield_guard.detector.freerun import free_running_starts
 from lishield_guard.detector.sweep import (
+    START_SEPARATION,
     block_coherence_t,
     highpass_gain,
     highpass_gain_at,
@@ -59,6 +61,9 @@ MAX_EVALS = 160  # Nelder-Mead evaluations per start
 FREE_MAX_EVALS = 300  # the same with each tone's phase free (7 parameters for M = 3)
 FREE_SUBPERIODS = 3  # continuous variants also start at 1/2 .. 1/this of the best period
 FREE_REFINES = 2  # continuous variants: the best fixed-phase fits whose tone phases are freed
+FREE_RUN_CANDIDATES = 12  # continuous variants: demodulated timing hypotheses (`freerun`)...
+FREE_RUN_STARTS = 3  # ... of which the exact model's best at distinct periods are refined
+FREE_RUN_EXPOSURES = (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)  # their exposures tried (slots)
 LOOKALIKE_DOMINANT_RHO = 0.99  # rows a steady square wave fits this well are not refined
 SCAN_CYCLE_STEP = 1.015  # c_1 scanned on a geometric grid of this ratio over its whole range
 SCAN_EXPOSURE_STEP_SLOTS = 0.1  # exposures scanned from 0 to M slots (e and e + M fit alike)
@@ -384,7 +389,9 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
 
     A continuous variant frees the tone phases from its `FREE_REFINES` best fixed-phase fits
     only (on development captures, freeing them from every start found no detection more, at
-    twice the time).
+    twice the time), and from timing hypotheses its demodulated tones give
+    (`_free_running_fits`): a free-running LED's pattern does not repeat, so the grid's starts
+    are often at the wrong period.
     """
     blocks_log = np.asarray(blocks_log, dtype=np.float64)
     p_lo, p_hi = period_range_rows
@@ -435,6 +442,10 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
                 max_evals=FREE_MAX_EVALS)
             if -val_f > best[0]:
                 best = (-val_f, th_f, hp, y)
+        for fit in _free_running_fits(x, knots, model, (p_lo, p_hi), (c_lo, c_hi),
+                                      (s_lo * spec.f1_hz, s_hi * spec.f1_hz)):
+            if fit[0] > best[0]:
+                best = fit
     rho, th, hp, y = best
     if not rho > 0:
         return None
@@ -452,6 +463,48 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     return ModelFit(spec.name, channel, rho, alt,
                     float(p), float(c1), float(phi % m), float(e),
                     block_coherence_t(blocks_hp, tr, weights), n / float(p), leak)
+
+
+def _free_running_fits(x: np.ndarray, knots: _KnotMaker, model: _Objective,
+                       period_range_rows: tuple[float, float], c_range: tuple[float, float],
+                       k1_range_cpr: tuple[float, float]) -> list[tuple]:
+    """Fits of a free-running variant started from its tones (`freerun`): (rho, parameters,
+    high-pass, high-passed rows) each.
+
+    The demodulated tones' fundamentals rank `FREE_RUN_CANDIDATES` timing hypotheses roughly;
+    the exact model, at each of `FREE_RUN_EXPOSURES`, picks the `FREE_RUN_STARTS` best at
+    distinct periods, and Nelder-Mead refines all M + 4 parameters from those."""
+    if not FREE_RUN_STARTS:
+        return []
+    n, m = x.size, knots.m
+    ranked = []
+    for st in free_running_starts(x, knots.rel, knots.duty, period_range_rows=period_range_rows,
+                                  c_range=c_range, k1_range_cpr=k1_range_cpr,
+                                  n_best=FREE_RUN_CANDIDATES):
+        hp = _highpass(n, st.period_rows / (2 * math.pi * HIGHPASS_CYCLES))
+        y = hp(x)
+        loss = model.loss(hp, y)
+        ranked += [(loss(th), th, hp, y, loss) for th in map(st.params, FREE_RUN_EXPOSURES)]
+    ranked.sort(key=lambda r: r[0])
+    out = []
+    for _, x0, hp, y, loss in _distinct_periods(ranked, FREE_RUN_STARTS):
+        val, th = _nelder_mead(loss, x0,
+                               np.array([0.005 * x0[0], 0.02, 0.05, 0.05] + [0.1] * m),
+                               max_evals=FREE_MAX_EVALS)
+        out.append((-val, th, hp, y))
+    return out
+
+
+def _distinct_periods(ranked: list[tuple], k: int) -> list[tuple]:
+    """The first ``k`` entries of ``ranked`` (loss, parameters, ...) whose periods differ by
+    more than `sweep.START_SEPARATION` (relative) from every earlier one kept."""
+    out: list[tuple] = []
+    for r in ranked:
+        if len(out) >= k:
+            break
+        if all(abs(r[1][0] / o[1][0] - 1.0) > START_SEPARATION for o in out):
+            out.append(r)
+    return out
 
 
 def _matched_refit(blocks_lin: np.ndarray, blocks_hp: np.ndarray, hp, model: _Objective,

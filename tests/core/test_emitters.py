@@ -46,3 +46,16 @@ def test_tones_running_on_across_slots_are_detected(make_led_image):
     # slot start differs and the pattern does not repeat for 5 patterns
     v = detect(make_led_image(PRESETS["table1-seq1"], switching_hz=250.0, phase="free"))
     assert v.protected, v.evidence["reason"]
+
+
+# Free-running timers with a pattern that never repeats in the frame: the grid of repeating
+# templates ranks a wrong period first, and only the tones' own coherence (detector/freerun.py)
+# leads the fit to the right one. Both were missed before it (development set 000035 is the
+# first case).
+@pytest.mark.parametrize(("name", "switching_hz", "row_rate_hz"),
+                         [("table1-seq3", 1526.0, 100_000.0), ("table1-seq1", 320.0, 60_000.0)])
+def test_free_running_tones_lead_the_fit_to_their_period(make_led_image, name, switching_hz,
+                                                         row_rate_hz):
+    v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz, row_rate_hz=row_rate_hz,
+                              exposure_s=1 / 8000, phase="free"))
+    assert v.protected, v.evidence["reason"]
