@@ -1,4 +1,4 @@
-"""Does the first stage ever clear a capture the full cascade flags? Checked on a dataset's positives.
+"""Does the first stage ever clear a capture the full cascade flags? Checked on positives.
 
 For the first N positives of a `lishield-guard synth dataset` folder, the detector runs once with
 the first stage off (every plane goes to the pattern search) and, for each capture that run

@@ -7,6 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from core_led_model import row_waveform
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lishield_guard import PRESETS
 from lishield_guard.detector.emitters import cycles_range
@@ -70,3 +72,23 @@ def test_no_tone_no_start():
     assert free_running_starts(np.zeros(N_ROWS), knots.rel, knots.duty,
                                period_range_rows=(10.0, 1000.0), c_range=(0.8, 2.5),
                                k1_range_cpr=(0.003, 0.05)) == []
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_rows=st.integers(16, 1500),
+       name=st.sampled_from(["table1-seq1", "table1-seq2", "table1-seq3"]))
+def test_every_start_lies_within_the_bounds_it_was_given(seed, n_rows, name):
+    spec = PRESETS[name]
+    knots = _KnotMaker(replace(spec, phase="continuous"), "W")
+    x = np.random.default_rng(seed).normal(size=n_rows).cumsum()  # scene-like red noise
+    p_range, c_range = (10.0, 1.5 * n_rows), cycles_range(spec.f1_hz)
+    k_range = (spec.f1_hz * SCALE[0], spec.f1_hz * SCALE[1])
+    for s in free_running_starts(x, knots.rel, knots.duty, period_range_rows=p_range,
+                                 c_range=c_range, k1_range_cpr=k_range):
+        assert 0.0 <= s.score <= 1.0
+        assert p_range[0] <= s.period_rows <= p_range[1]
+        k1 = s.cycles_f1 * spec.n_tones / s.period_rows
+        assert k_range[0] * 0.999 <= k1 <= k_range[1] * 1.001
+        assert c_range[0] * 0.999 <= s.cycles_f1 <= c_range[1] * 1.001
+        assert all(0.0 <= t < 1.0 for t in s.tone_phases)
+        assert np.isfinite(s.params(0.3)).all()
