@@ -121,7 +121,8 @@ def _gated_energy(cum: np.ndarray, m: int, period_rows: float, phases: np.ndarra
     tone."""
     n = cum.shape[1] - 1
     slot_rows = period_rows / m
-    s = np.arange(-1, int(math.ceil(n / slot_rows)) + 2)  # slots touching the frame
+    # row i lies in slot floor(i / slot_rows + phi), phi in [0, M): slots 0 .. n / slot_rows + M
+    s = np.arange(0, int(math.ceil(n / slot_rows)) + m + 1)
     edges = np.clip(np.rint((s[None, :] - phases[:, None]) * slot_rows), 0, n).astype(np.int64)
     pos = s[:-1] % m  # slot position of slot s (rows edges[s] .. edges[s + 1])
     sums = np.zeros((phases.size, m), dtype=np.complex128)

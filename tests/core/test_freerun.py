@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from lishield_guard import PRESETS
 from lishield_guard.detector.emitters import cycles_range
 from lishield_guard.detector.fit import _KnotMaker, refine
-from lishield_guard.detector.freerun import free_running_starts
+from lishield_guard.detector.freerun import _gated_energy, free_running_starts
 
 ROW_RATE_HZ = 100_000.0
 N_ROWS = 1080
@@ -92,3 +92,12 @@ def test_every_start_lies_within_the_bounds_it_was_given(seed, n_rows, name):
         assert c_range[0] * 0.999 <= s.cycles_f1 <= c_range[1] * 1.001
         assert all(0.0 <= t < 1.0 for t in s.tone_phases)
         assert np.isfinite(s.params(0.3)).all()
+
+
+@pytest.mark.parametrize("period_rows", [30.0, 211.6, 1183.0, 3000.0])
+def test_every_row_belongs_to_one_slot_at_every_slot_phase(period_rows):
+    n, m = 1080, 3
+    cum = np.zeros((m, n + 1), dtype=np.complex128)
+    phases = np.arange(m * 8) / 8  # up to 2.875 slots: the frame's end lies in slot ~n/slot + 3
+    _, counts = _gated_energy(cum, m, period_rows, phases)
+    assert (counts.sum(axis=1) == n).all()
