@@ -83,6 +83,7 @@ from lishield_guard.decode import decode
 from lishield_guard.detector.paper import block_peaks_hz, count_ratio_matches, required_matches
 from lishield_guard.detector.pipeline import (
     collect_evidence,
+    decode_for,
     fold_fits,
     scaled_detector,
     screen_specs,
@@ -435,8 +436,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     """
     det = config.detector
     t0 = time.perf_counter()
-    decoded = decode(source, limits=config.limits, fast=det.fast_decode,
-                     max_rows=det.max_decode_rows)
+    decoded = decode_for(source, config)
     evidence = collect_evidence(decoded, config)
     # fits of specs the first stage clears never decide (pipeline.decide skips them)
     screened = screened_candidates(evidence, config)

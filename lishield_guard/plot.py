@@ -134,11 +134,9 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
     """Per-sub-block log contrast (n_blocks, n_rows) of the plane a fit was made on, computed
     as the detector does, and the decoded image's row scale."""
     from lishield_guard import detect as _detect
-    from lishield_guard.decode import decode
+    from lishield_guard.detector.pipeline import decode_for
 
-    det = config.detector
-    decoded = decode(source, limits=config.limits, fast=det.fast_decode,
-                     max_rows=det.max_decode_rows if det.profile == "default" else 0)
+    decoded = decode_for(source, config)
     plane = decoded.luma
     if channel in ("R", "G", "B") and decoded.is_color:
         plane = decoded.rgb()[:, :, "RGB".index(channel)]
@@ -153,7 +151,7 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
             pass
     from lishield_guard.detector.profiles import block_row_profiles, detrend_profiles
 
-    prof = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis)
+    prof = block_row_profiles(plane, n_col_blocks=config.detector.n_col_blocks, axis=axis)
     prof = np.log(np.maximum(np.asarray(prof, dtype=np.float64), 1e-3))
     contrast, _ = detrend_profiles(prof, sigma_rows=prof.shape[1] / 6.0)
     return contrast, decoded.row_scale

@@ -44,9 +44,9 @@ from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.verdict import Verdict
 
-__all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decide", "detect",
-           "detect_decoded", "fold_fits", "scaled_detector", "screen_specs", "spec_planes",
-           "sweep_fits"]
+__all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decide",
+           "decode_for", "detect", "detect_decoded", "fold_fits", "scaled_detector",
+           "screen_specs", "spec_planes", "sweep_fits"]
 
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 MIN_ACROSS = 64  # fewer pixels across the lines cannot fill 8 column blocks of 8 pixels: the
@@ -108,11 +108,21 @@ def detect(source, config: AppConfig | DetectorConfig | None = None) -> Verdict:
     """
     cfg = _resolve(config)
     timer = _Timer()
-    det = cfg.detector
     with timer("decode"):
-        decoded = decode(source, limits=cfg.limits, fast=det.fast_decode,
-                         max_rows=det.max_decode_rows if det.profile == "default" else 0)
+        decoded = decode_for(source, cfg)
     return detect_decoded(decoded, cfg, _timer=timer)
+
+
+def decode_for(source, config: AppConfig) -> Decoded:
+    """``source`` decoded as the configured profile analyses it (`decode.decode`): the default
+    profile at reduced JPEG scale (``max_decode_rows``), and with its colour planes at once
+    when an RGB spec is configured (an ordinary photo needs them: one decode instead of luma
+    first and colour later)."""
+    det = config.detector
+    default = det.profile == "default"
+    want_rgb = default and any(s.is_rgb for p in config.policies for s in p.specs)
+    return decode(source, limits=config.limits, fast=det.fast_decode, want_rgb=want_rgb,
+                  max_rows=det.max_decode_rows if default else 0)
 
 
 def detect_decoded(decoded: Decoded, config: AppConfig, *, _timer: _Timer | None = None
@@ -274,10 +284,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         chans = spec_planes(spec, planes)
         if chans is None:
             continue
-        m = match_spec(spec, chans, det)  # tone tracks
         if (pid, spec) not in screened:  # the first stage cleared every plane of the spec
-            out.append((pid, _cleared_by_screen(m, chans, screens, det)))
+            out.append((pid, _cleared_by_screen(spec, chans, screens, det)))
             continue
+        m = match_spec(spec, chans, det)  # tone tracks
         if m.protected and tone_check_on(det) and not tone_fit_confirms(sweeps(spec.name),
                                                                           det):
             m = replace(m, protected=False, reason=(
@@ -293,9 +303,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
     return out
 
 
-def _cleared_by_screen(m: SpecMatch, chans: dict[str, PlaneAnalysis], screens: dict,
+def _cleared_by_screen(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], screens: dict,
                        det: DetectorConfig) -> SpecMatch:
-    """``m`` as the first stage left it: not protected, with the reason its planes failed."""
+    """``spec`` as the first stage left it: not protected, no tone matched (the tone tracks
+    are not searched, as in calibration), with the reason its planes failed."""
     best = max((screens[id(pa)] for pa in chans.values()), key=lambda r: r.frames)
     steady = [r.steady_rho for pa in chans.values()
               if (r := screens[id(pa)]).steady_rho is not None]
@@ -311,8 +322,10 @@ def _cleared_by_screen(m: SpecMatch, chans: dict[str, PlaneAnalysis], screens: d
                   f"; in any half of the columns, {best.part_frames} at p="
                   f"{det.screen_partial_false_prob:g}, "
                   f"{det.screen_partial_min_frames} needed") + ")")
-    return replace(m, protected=False, stage="first stage",
-                   reason=f"first stage: {why}; pattern search skipped")
+    need = det.min_tones_rgb if spec.is_rgb else det.min_tones
+    return SpecMatch(spec.name, 0.0, {}, {}, 0, need, 0.0, 0, False,
+                     f"first stage: {why}; tone tracks and pattern search skipped",
+                     stage="first stage")
 
 
 def _fold_stage(m: SpecMatch, spec: BarcodeSpec, info: dict | None,

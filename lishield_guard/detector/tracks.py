@@ -24,7 +24,8 @@ x = m ((p / n_bins)^(-1/m) - 1), for a per-frame false-pass probability p
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.fft
@@ -99,7 +100,9 @@ class PlaneAnalysis:
     ``blocks`` the log contrast of each usable column block (n_blocks, n_rows), used by the
     period sweep's coherence test; ``fine_blocks`` the same for narrower sub-blocks, used by
     the exact-model fit to weight the columns by how quiet their scene is; ``band_cpr`` the
-    stripe frequencies the tracks searched, cycles per row.
+    stripe frequencies the tracks searched, cycles per row. Sub-blocks may instead be given
+    as their row means, ``fine_profiles``, detrended at ``trend_sigma_rows`` on first use
+    (`fit_blocks`).
     """
 
     n_rows: int
@@ -110,11 +113,24 @@ class PlaneAnalysis:
     blocks: np.ndarray | None = None
     fine_blocks: np.ndarray | None = None
     band_cpr: tuple[float, float] = (0.0, 0.45)
+    fine_profiles: np.ndarray | None = field(default=None, repr=False)
+    trend_sigma_rows: float = 0.0
 
     @property
     def fit_blocks(self) -> np.ndarray | None:
         """The blocks the sweep and the exact fit weigh: sub-blocks where analysed."""
-        return self.blocks if self.fine_blocks is None else self.fine_blocks
+        if self.fine_blocks is not None:
+            return self.fine_blocks
+        return self.blocks if self._fine_contrast is None else self._fine_contrast
+
+    @cached_property
+    def _fine_contrast(self) -> np.ndarray | None:
+        # the usable sub-blocks' log contrast, detrended on first use: most planes of an
+        # ordinary photo never reach a stage that weighs sub-blocks
+        if self.fine_profiles is None:
+            return None
+        return detrend_profiles(self.fine_profiles,
+                                sigma_rows=self.trend_sigma_rows)[0].astype(np.float32)
 
     @property
     def max_significant_fraction(self) -> float:
@@ -123,7 +139,11 @@ class PlaneAnalysis:
 
     def with_false_prob(self, false_prob: float) -> PlaneAnalysis:
         """The same analysis judged at another per-frame false-pass probability."""
-        return replace(self, tracks=tuple(t.with_false_prob(false_prob) for t in self.tracks))
+        tracks = tuple(t.with_false_prob(false_prob) for t in self.tracks)
+        if self.fine_profiles is None:
+            return replace(self, tracks=tracks)
+        # detrended once here and shared, not once per copy
+        return replace(self, tracks=tracks, fine_blocks=self.fit_blocks, fine_profiles=None)
 
 
 def _usable_blocks(profiles: np.ndarray, full_scale: float) -> tuple[np.ndarray, list[str]]:
@@ -176,10 +196,9 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
     if fine_profiles is not None:
         fine_keep, _ = _usable_blocks(fine_profiles, full_scale)
         if fine_keep.sum() >= 2:
-            fine = detrend_profiles(fine_profiles[fine_keep],
-                                    sigma_rows=trend_sigma_rows)[0].astype(np.float32)
+            fine = fine_profiles[fine_keep]
     return PlaneAnalysis(n_rows, nb, tracks, tuple(skipped), common.astype(np.float32),
-                         contrast.astype(np.float32), fine, band)
+                         contrast.astype(np.float32), None, band, fine, trend_sigma_rows)
 
 
 def frequency_tracks(contrast: np.ndarray, *, band_cpr: tuple[float, float], false_prob: float

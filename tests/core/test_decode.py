@@ -255,3 +255,26 @@ def test_fifo_and_device_paths_are_refused_without_reading(tmp_path):
     assert "not a regular file" in str(out[0].value)
     with pytest.raises(UnsupportedImageError, match="not a regular file"):
         decode("/dev/zero")
+
+
+def test_the_default_profile_decodes_a_colour_jpeg_once_when_an_rgb_spec_is_configured():
+    """With an RGB spec configured every ordinary photo needs its colour planes, so they come
+    from the first decode; with mono specs only the colour planes are never decoded."""
+    from dataclasses import replace
+
+    import cv2
+    from skimage import data
+
+    from lishield_guard import default_config
+    from lishield_guard.detector.pipeline import decode_for
+
+    ok, buf = cv2.imencode(".jpg", data.coffee()[:, :, ::-1])
+    assert ok
+    cfg = default_config()
+    assert any(s.is_rgb for p in cfg.policies for s in p.specs)
+    both = decode_for(buf.tobytes(), cfg)
+    assert both._rgb is not None and both.rgb().shape == (*both.luma.shape, 3)
+    mono = [replace(p, specs=tuple(s for s in p.specs if not s.is_rgb)) for p in cfg.policies]
+    luma_only = decode_for(buf.tobytes(), replace(cfg, policies=tuple(mono)))
+    assert luma_only._rgb is None
+    assert np.abs(luma_only.luma.astype(int) - both.luma.astype(int)).mean() < 0.05

@@ -146,3 +146,50 @@ def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
             v = detect(img, base)
             assert v.protected, v.evidence["reason"]
     assert flagged >= 3
+
+
+def test_a_cleared_photo_pays_neither_tone_tracks_nor_sub_block_detrending(make_led_image,
+                                                                          monkeypatch):
+    """What the first stage clears costs only the screen: no spec's tones are matched, and
+    sub-blocks are detrended only for the luma halves test, not for the 8 planes analysed
+    (both ran for every plane of every photo before)."""
+    import lishield_guard.detector.pipeline as pipeline
+    import lishield_guard.detector.tracks as tracks
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("called for a photo the first stage clears")
+
+    scene = cv2.resize(data.coffee(), (1440, 1080))
+    image = make_led_image(None, scene=scene)
+    monkeypatch.setattr(pipeline, "match_spec", forbidden)
+    real_detrend = tracks.detrend_profiles
+    sizes = []
+    monkeypatch.setattr(tracks, "detrend_profiles",
+                        lambda p, **kw: sizes.append(p.shape[0]) or real_detrend(p, **kw))
+    v = detect(image)
+    assert v.status == "clean"
+    assert all(c["stage"] == FIRST_STAGE and c["n_matched"] == 0
+               for c in v.evidence["candidates"])
+    n_blocks = default_config().detector.n_col_blocks
+    assert sizes.count(n_blocks) == 8  # L, R, G, B along rows and columns
+    assert sum(s > n_blocks for s in sizes) <= 2  # the halves test, luma only
+
+
+def test_sub_blocks_detrended_on_first_use_equal_the_eager_result(rng):
+    """`PlaneAnalysis.fit_blocks` from sub-block row means, detrended on first use, is the
+    eager detrend of the usable sub-blocks, and judged at another false-pass probability the
+    copy shares it."""
+    from lishield_guard.detector.profiles import detrend_profiles
+    from lishield_guard.detector.tracks import analyse_profiles
+
+    rows = np.arange(1024)
+    fine = 120 + 30 * rng.random((32, 1)) + 5 * np.sin(rows / 40.0) + rng.normal(0, 1, (32, 1024))
+    fine[3] = 0.0  # a black sub-block is not usable
+    coarse = fine.reshape(8, 4, -1).mean(axis=1)
+    pa = analyse_profiles(coarse, full_scale=255.0, band_cpr=(0.01, 0.4), trend_sigma_rows=50.0,
+                          false_prob=1e-3, fine_profiles=fine)
+    usable = np.delete(fine, 3, axis=0)
+    want = detrend_profiles(usable, sigma_rows=50.0)[0].astype(np.float32)
+    np.testing.assert_array_equal(pa.fit_blocks, want)
+    other = pa.with_false_prob(1e-2)
+    assert other.fit_blocks is pa.fit_blocks
