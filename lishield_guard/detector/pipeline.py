@@ -608,10 +608,9 @@ def _analysed_axes(decoded: Decoded, config: AppConfig, timer: _Timer, skipped: 
         def colour(axis=axis, planes=planes) -> dict[str, PlaneAnalysis]:
             if decoded.is_color:
                 with timer("profile_color"):
-                    rgb = decoded.rgb()
-                    planes.update({c: analyse_plane(rgb[:, :, i], axis, config,
-                                                    decoded.row_scale)
-                                   for i, c in enumerate("RGB")})
+                    planes.update({c: analyse_plane(p, axis, config, decoded.row_scale)
+                                   for c, p in zip("RGB", decoded.colour_planes(),
+                                                   strict=True)})
             return planes
 
         yield name, planes, colour
