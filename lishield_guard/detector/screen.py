@@ -157,8 +157,8 @@ def _best_part(analysis: PlaneAnalysis, false_prob: float, grid_cpr: tuple[float
     fine = analysis.fit_blocks
     if fine is None or fine.shape[0] < PART_BLOCKS:
         return None, 0, 0, 0.0
-    group = fine.shape[0] // PART_BLOCKS  # adjacent sub-blocks averaged into PART_BLOCKS
-    blocks = fine[: group * PART_BLOCKS].reshape(PART_BLOCKS, group, -1).mean(axis=1)
+    # adjacent sub-blocks averaged into PART_BLOCKS, every usable one in some block
+    blocks = np.stack([g.mean(axis=0) for g in np.array_split(fine, PART_BLOCKS)])
     h, q = PART_BLOCKS // 2, PART_BLOCKS // 4
     parts = dict(zip(PARTS, (slice(0, h), slice(q, q + h), slice(h, PART_BLOCKS)),
                      strict=True))

@@ -193,3 +193,18 @@ def test_sub_blocks_detrended_on_first_use_equal_the_eager_result(rng):
     np.testing.assert_array_equal(pa.fit_blocks, want)
     other = pa.with_false_prob(1e-2)
     assert other.fit_blocks is pa.fit_blocks
+
+
+def test_every_usable_sub_block_takes_part_in_the_halves_test(rng):
+    """With 24 usable sub-blocks (some black or saturated), stripes in the right-most 8 are
+    found by the right half; only the first 16 took part before, and they were missed."""
+    n_rows, n_sub = 1024, 24
+    rows = np.arange(n_rows)
+    fine = rng.normal(0.0, 0.01, (n_sub, n_rows))
+    fine[16:] += 0.05 * np.sin(2 * np.pi * 0.06 * rows)
+    pa = PlaneAnalysis(n_rows, 8, (), (), fine.mean(axis=0).astype(np.float32),
+                       fine.reshape(8, 3, -1).mean(axis=1).astype(np.float32),
+                       fine.astype(np.float32), (0.01, 0.45))
+    r = screen_plane(pa, false_prob=0.01, min_frames=2, partial_false_prob=1e-3,
+                     partial_min_frames=3)
+    assert r.via == "right half" and r.part_frames >= 3, r
