@@ -556,8 +556,9 @@ def evaluate_targets(rows: Sequence[dict], targets: dict | None, memory: dict | 
             out.append({"id": "c", "what": f"{fast} vs {ref}: |change| of TPR and FPR (pp)",
                         "measured": worst, "limit": lim,
                         "met": None if worst is None else worst < lim,
-                        "detail": f"TPR {d_tpr:+.2f} pp, FPR {d_fpr:+.2f} pp on {res[0]} pos / "
-                                  f"{res[1]} neg (one image = {100 / max(min(res), 1):.2f} pp)"})
+                        "detail": f"TPR {_pp_text(d_tpr)}, FPR {_pp_text(d_fpr)} on {res[0]} "
+                                  f"pos / {res[1]} neg (one image = "
+                                  f"{100 / max(min(res), 1):.2f} pp)"})
     m = (memory or {}).get("settings", {}).get("default", {})
     x = m.get("x_rgb")
     out.append({"id": "d", "what": "default profile peak memory above baseline / 8-bit RGB size, "
@@ -573,6 +574,11 @@ def evaluate_targets(rows: Sequence[dict], targets: dict | None, memory: dict | 
 
 def _pp(a: float | None, b: float | None) -> float | None:
     return None if a is None or b is None else (a - b) * 100.0
+
+
+def _pp_text(d: float | None) -> str:
+    """A change in percentage points, or why there is none (no image of that label timed)."""
+    return "not measured (no image)" if d is None else f"{d:+.2f} pp"
 
 
 def _fmt_rate(r: dict) -> str:

@@ -122,3 +122,14 @@ def test_parallel_matches_sequential_verdicts(tiny_dataset):
         for n in names:
             assert a["settings"][n]["protected"] == b["settings"][n]["protected"]
             assert b["settings"][n]["ratio"] > 0
+
+
+def test_a_rate_change_with_no_timed_positive_is_reported_not_measured():
+    """A --quick run whose time budget ran out before any positive leaves the TPR change
+    undefined: the target reads "not measured" for it instead of failing the whole report."""
+    rows = [{"setting": "default", "tpr": {"rate": None, "n": 0}, "fpr": {"rate": 0.0, "n": 3}},
+            {"setting": "default-ref", "tpr": {"rate": None, "n": 0},
+             "fpr": {"rate": 0.0, "n": 3}}]
+    (c,) = [x for x in bench.evaluate_targets(rows, None, None) if x["id"] == "c"]
+    assert c["measured"] == 0.0 and c["met"] is True
+    assert "TPR not measured" in c["detail"] and "FPR +0.00 pp" in c["detail"]
