@@ -128,13 +128,20 @@ def decided_by(verdict) -> str:
     return "tones"
 
 
-def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float]:
-    """One image's verdict: (protected, deciding default-profile stage or None, ms)."""
+def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float, str | None]:
+    """One image's verdict: (protected, deciding default-profile stage or None, ms, how far it
+    went: ``"first stage"`` when the first stage cleared every candidate the verdict lists,
+    ``"search"`` otherwise, None for the paper profile)."""
     t0 = time.perf_counter()
     v = detect(path, cfg)
     ms = (time.perf_counter() - t0) * 1e3
     stage = decided_by(v) if v.protected and v.profile == "default" else None
-    return bool(v.protected), stage, ms
+    cands = v.evidence.get("candidates") or []
+    reached = None
+    if v.profile == "default" and cands:
+        cleared = all(c.get("stage") == "first stage" for c in cands)
+        reached = "first stage" if cleared else "search"
+    return bool(v.protected), stage, ms, reached
 
 
 def main() -> int:
@@ -174,7 +181,7 @@ def main() -> int:
         paths = [args.dataset / it["file"] for it in items]
         with ProcessPoolExecutor(args.jobs, initializer=one_thread_per_worker) as pool:
             outcomes = list(pool.map(_judge, paths, [cfg] * len(paths), chunksize=4))
-        for it, (protected, stage, ms) in zip(items, outcomes, strict=True):
+        for it, (protected, stage, ms, reached) in zip(items, outcomes, strict=True):
             extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]
             if protected and profile == "default":
                 extra.append(f"decided-by:{stage}:{'pos' if it['label'] else 'neg'}")
@@ -186,10 +193,11 @@ def main() -> int:
                 per_image.append({"file": it["file"], "profile": profile,
                                   "label": it["label"], "kind": it.get("kind"),
                                   "protected": protected, "decided_by": stage,
+                                  "stage_reached": reached,
                                   "ms": round(ms, 1), "preset": it.get("preset"),
                                   "switching_hz": it.get("switching_hz"), **em})
         dt = time.perf_counter() - t0
-        med = statistics.median(ms for _, _, ms in outcomes) if outcomes else 0.0
+        med = statistics.median(o[2] for o in outcomes) if outcomes else 0.0
         print(f"\nprofile={profile}  ({len(items)} images, {args.jobs} processes, "
               f"{dt / len(items) * 1e3:.1f} ms/image wall, median {med:.1f} ms per image "
               f"in a process)")
