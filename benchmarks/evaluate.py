@@ -98,17 +98,19 @@ def kinds(item: dict) -> list[str]:
             out.append("exposure>=slot")
     if item.get("scene_kind"):
         out.append(f"scene:{item['scene_kind']}:{'pos' if item.get('label') == 1 else 'neg'}")
+        # capture conditions: the plain name counts barcodes (a TPR), ":neg" look-alikes
+        side = "" if item.get("label") == 1 else ":neg"
         for key, name in (("attack", "exposure-attack"),):
             if item.get(key):
-                out.append(name)
+                out.append(name + side)
         if (item.get("ambient_ratio") or 0) > 1:
-            out.append("ambient>1")
+            out.append("ambient>1" + side)
         if (item.get("coverage") or {}).get("fraction", 1) not in (1, 1.0, None):
-            out.append("partial-coverage")
+            out.append("partial-coverage" + side)
         if (item.get("downscale") or 1) > 1:
-            out.append("downscaled")
+            out.append("downscaled" + side)
         if item.get("rotation_deg"):
-            out.append("rotated")
+            out.append("rotated" + side)
     return out
 
 

@@ -49,3 +49,17 @@ def test_old_manifests_get_emitter_fields(evaluate):
     assert evaluate.emitter({"label": 0, "kind": "steady"}) is None
     assert evaluate.kinds({"label": 0, "kind": "pwm", "scene_kind": "photo"}) == [
         "pwm", "scene:photo:neg"]
+
+
+def test_capture_conditions_count_barcodes_and_look_alikes_apart(evaluate):
+    """"ambient>1" and the other capture conditions are TPR groups: look-alikes under the
+    same condition are counted as "ambient>1:neg", not in the same denominator."""
+    cond = {"scene_kind": "real-photo", "ambient_ratio": 2.0, "rotation_deg": 90,
+            "downscale": 2.0, "coverage": {"fraction": 0.5}}
+    neg = set(evaluate.kinds({"label": 0, "kind": "steady", **cond}))
+    assert {"ambient>1:neg", "rotated:neg", "downscaled:neg", "partial-coverage:neg"} <= neg
+    assert not {"ambient>1", "rotated", "downscaled", "partial-coverage"} & neg
+    pos = set(evaluate.kinds({"label": 1, "kind": "barcode", "channels": ["W"],
+                              "preset": "table1-seq1", "tones_hz": {"W": [400.0, 600.0, 800.0]},
+                              "switching_hz": 300.0, "exposure_s": 0.001, **cond}))
+    assert {"ambient>1", "rotated", "downscaled", "partial-coverage"} <= pos
