@@ -130,10 +130,11 @@ def decided_by(verdict) -> str:
     return "tones"
 
 
-def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float, str | None]:
+def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float, str | None, int]:
     """One image's verdict: (protected, deciding default-profile stage or None, ms, how far it
     went: ``"first stage"`` when the first stage cleared every candidate the verdict lists,
-    ``"search"`` otherwise, None for the paper profile)."""
+    ``"search"`` otherwise, None for the paper profile; the verdict's ``matches``, which for
+    the paper profile is its ratio-match count m_b)."""
     t0 = time.perf_counter()
     v = detect(path, cfg)
     ms = (time.perf_counter() - t0) * 1e3
@@ -143,7 +144,7 @@ def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float, str | N
     if v.profile == "default" and cands:
         cleared = all(c.get("stage") == "first stage" for c in cands)
         reached = "first stage" if cleared else "search"
-    return bool(v.protected), stage, ms, reached
+    return bool(v.protected), stage, ms, reached, int(v.matches)
 
 
 def main() -> int:
@@ -183,7 +184,7 @@ def main() -> int:
         paths = [args.dataset / it["file"] for it in items]
         with ProcessPoolExecutor(args.jobs, initializer=one_thread_per_worker) as pool:
             outcomes = list(pool.map(_judge, paths, [cfg] * len(paths), chunksize=4))
-        for it, (protected, stage, ms, reached) in zip(items, outcomes, strict=True):
+        for it, (protected, stage, ms, reached, matches) in zip(items, outcomes, strict=True):
             extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]
             if protected and profile == "default":
                 extra.append(f"decided-by:{stage}:{'pos' if it['label'] else 'neg'}")
@@ -195,7 +196,7 @@ def main() -> int:
                 per_image.append({"file": it["file"], "profile": profile,
                                   "label": it["label"], "kind": it.get("kind"),
                                   "protected": protected, "decided_by": stage,
-                                  "stage_reached": reached,
+                                  "stage_reached": reached, "matches": matches,
                                   "ms": round(ms, 1), "preset": it.get("preset"),
                                   "switching_hz": it.get("switching_hz"), **em})
         dt = time.perf_counter() - t0
