@@ -146,16 +146,12 @@ class Decoded:
                 raise InvalidImageError("colour planes are not available")
         return self._rgb
 
-
     def colour_planes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The R, G, B planes (`rgb`) as contiguous arrays, split once: row profiles of a
         strided channel view cost about twice as much."""
         if self._planes is None:
             rgb = self.rgb()
-            if rgb.dtype in (np.uint8, np.uint16, np.float32):
-                self._planes = tuple(cv2.split(np.ascontiguousarray(rgb)))
-            else:
-                self._planes = tuple(np.ascontiguousarray(rgb[:, :, i]) for i in range(3))
+            self._planes = tuple(np.ascontiguousarray(rgb[:, :, i]) for i in range(3))
         return self._planes
 
 

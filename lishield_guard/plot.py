@@ -139,7 +139,7 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
     decoded = decode_for(source, config)
     plane = decoded.luma
     if channel in ("R", "G", "B") and decoded.is_color:
-        plane = decoded.rgb()[:, :, "RGB".index(channel)]
+        plane = decoded.colour_planes()["RGB".index(channel)]
     analyse = getattr(_detect, "_analyse", None)
     if analyse is not None:
         try:
