@@ -87,7 +87,8 @@ def _template_corr(jpeg, item: dict, cfg) -> dict[str, float]:
     """Correlations of the item's true template with ``jpeg``'s rows, per row construction
     (see `VARIANTS`); empty when the image has too few rows to analyse."""
     det = cfg.detector
-    dec = decode(jpeg, limits=cfg.limits, fast=det.fast_decode, max_rows=det.max_decode_rows)
+    dec = decode(jpeg, limits=cfg.limits, fast=det.profiles.fast_decode,
+                 max_rows=det.profiles.max_decode_rows)
     pa = analyse_plane(dec.luma, 0, cfg, dec.row_scale)
     if pa.blocks is None:
         return {}

@@ -77,8 +77,8 @@ def main() -> int:
     for it in items:
         spec = get_preset(it["preset"])
         m = spec.n_tones
-        dec = decode(args.dataset / it["file"], limits=cfg.limits, fast=det.fast_decode,
-                     max_rows=det.max_decode_rows)
+        dec = decode(args.dataset / it["file"], limits=cfg.limits, fast=det.profiles.fast_decode,
+                     max_rows=det.profiles.max_decode_rows)
         from lishield_guard.detector.pipeline import (
             _period_range_rows,
             analyse_plane,

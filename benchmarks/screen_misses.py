@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     shipped = load_config(args.config)
-    no_screen = AppConfig(detector=shipped.detector.replace(screen_false_prob=None),
+    no_screen = AppConfig(detector=shipped.detector.replace(screen=None),
                           limits=shipped.limits, policies=shipped.policies)
     rows = [json.loads(line) for line in (args.dataset / "manifest.jsonl").open()]
     positives = [r for r in rows if r.get("label") == 1][: args.n]

@@ -47,9 +47,10 @@ FLOOR = "pillow-rgb"  # the decode floor: Pillow full RGB decode + np.asarray
 SETTINGS: dict[str, dict] = {
     "paper": {"profile": "paper"},
     "default": {"profile": "default"},
-    "default-ref": {"profile": "default", "fast_decode": False},
-    "fast": {"profile": "default", "orientations": "rows"},
-    "fast-half": {"profile": "default", "orientations": "rows", "max_decode_rows": 512},
+    "default-ref": {"profile": "default", "profiles.fast_decode": False},
+    "fast": {"profile": "default", "profiles.orientations": "rows"},
+    "fast-half": {"profile": "default", "profiles.orientations": "rows",
+                  "profiles.max_decode_rows": 512},
 }
 # Setting -> the same setting decoded on the reference path (target c compares the two).
 REFERENCE_OF = {"default": "default-ref"}
@@ -115,7 +116,7 @@ def make_settings(names: Iterable[str], base: AppConfig) -> list[Setting]:
     for name in names:
         if name not in SETTINGS:
             raise ValueError(f"unknown setting {name!r}; known: {', '.join(SETTINGS)}")
-        det = base.detector.replace(**SETTINGS[name])
+        det = base.detector.with_values(SETTINGS[name])
         out.append(Setting(name, dataclasses.replace(base, detector=det)))
     return out
 

@@ -222,14 +222,16 @@ def images_needed(target_far: float, confidence: float = CONFIDENCE, *,
 # ----------------------------------------------------------------------------- grids
 
 
-SWEEP_KEYS = ("sweep_min_rho", "sweep_min_margin", "sweep_min_coherence", "fit_min_rho",
-              "fit_min_gain", "fit_min_rho_rgb", "fit_min_gain_rgb", "fit_max_leak_rgb",
-              "fit_min_rho_periodic", "fit_min_gain_periodic")
+SWEEP_KEYS = ("sweep.min_rho", "sweep.min_margin", "sweep.min_coherence", "fit.min_rho",
+              "fit.min_gain", "fit.min_rho_rgb", "fit.min_gain_rgb", "fit.max_leak_rgb",
+              "fit.min_rho_periodic", "fit.min_gain_periodic")
+COUNT_KEYS = ("paper.max_peaks", "tones.min_tones", "tones.min_tones_rgb")
 
 
 @dataclass(frozen=True)
 class DefaultGrid:
-    """Values swept for the default profile (all unitless)."""
+    """Values swept for the default profile (all unitless), named after the settings they
+    sweep (``peak_false_prob``: ``tones.peak_false_prob``; `SWEEP_KEYS`)."""
 
     peak_false_prob: tuple[float, ...] = (1e-3, 1e-4, 1e-5)
     tone_rel_tol: tuple[float, ...] = (0.05,)
@@ -282,7 +284,8 @@ class PaperGrid:
 
 @dataclass(frozen=True)
 class Setting:
-    """One swept point: profile plus the DetectorConfig fields it changes."""
+    """One swept point: profile plus the DetectorConfig fields it changes, by dotted name
+    (``"fit.min_gain"``; ``"paper.n_b"`` sets both paper block counts)."""
 
     profile: str
     params: tuple[tuple[str, float], ...]
@@ -299,13 +302,13 @@ class Setting:
     def apply(self, det: DetectorConfig) -> DetectorConfig:
         """``det`` with this setting's fields (paper n_b sets both block counts)."""
         changes = dict(self.params)
-        if "n_b" in changes:
-            n_b = int(changes.pop("n_b"))
-            changes["n_block_rows"] = changes["n_block_cols"] = n_b
-        for k in ("max_peaks", "min_tones", "min_tones_rgb"):
+        if "paper.n_b" in changes:
+            n_b = int(changes.pop("paper.n_b"))
+            changes["paper.n_block_rows"] = changes["paper.n_block_cols"] = n_b
+        for k in COUNT_KEYS:
             if k in changes:
                 changes[k] = int(changes[k])
-        return det.replace(profile=self.profile, **changes)
+        return det.with_values({"profile": self.profile, **changes})
 
 
 # ----------------------------------------------------------------------------- per image
@@ -384,9 +387,9 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
         if fp not in by_fp:
             by_fp[fp] = evidence.with_false_prob(fp)
         ev = by_fp[fp]
-        det = scaled_detector(config.detector.replace(peak_false_prob=fp, tone_rel_tol=tol,
-                                              min_occupancy=occ_lo, max_occupancy=occ_hi),
-                      ev.row_scale)
+        det = scaled_detector(config.detector.with_values({
+            "tones.peak_false_prob": fp, "tones.rel_tol": tol, "tones.min_occupancy": occ_lo,
+            "tones.max_occupancy": occ_hi}), ev.row_scale)
         for ai, axis in enumerate(AXES):
             planes = ev.axes.get(axis)
             if not planes:
@@ -417,8 +420,8 @@ def paper_peaks(decoded, config: AppConfig, grid: PaperGrid) -> tuple[dict, dict
     peaks, ms = {}, {}
     for n_b, m_p in itertools.product(grid.n_b, grid.max_peaks):
         t0 = time.perf_counter()
-        det = config.detector.replace(profile="paper", n_block_rows=n_b, n_block_cols=n_b,
-                                      max_peaks=m_p)
+        det = config.detector.with_values({"profile": "paper", "paper.n_block_rows": n_b,
+                                           "paper.n_block_cols": n_b, "paper.max_peaks": m_p})
         found = [block_peaks_hz(p, det) for p in planes]
         peaks[(n_b, m_p)] = np.unique(np.concatenate(found)) if found else np.zeros(0)
         ms[(n_b, m_p)] = (time.perf_counter() - t0) * 1e3
@@ -442,7 +445,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     screened = screened_candidates(evidence, config)
     folds = [f for f in fold_fits(evidence, config)
              if screened[_candidate_index(f, config)]]
-    sweeps = [f for f in (sweep_fits(evidence, config) if det.period_sweep else [])
+    sweeps = [f for f in (sweep_fits(evidence, config) if (det.sweep is not None) else [])
               if screened[_candidate_index(f, config)]]
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
            "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
@@ -451,7 +454,7 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
                               dtype=float).reshape(-1, len(SWEEP_COLUMNS))}
     if paper_grid is not None:
         t0 = time.perf_counter()
-        full = decode(source, limits=config.limits, fast=det.fast_decode, max_rows=0)
+        full = decode(source, limits=config.limits, fast=det.profiles.fast_decode, max_rows=0)
         rec["paper_decode_ms"] = (time.perf_counter() - t0) * 1e3
         rec["paper_peaks"], rec["paper_ms"] = paper_peaks(full, config, paper_grid)
     return rec
@@ -539,7 +542,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
         Supplies the other fold thresholds (fold_min_snr, fold_min_margin).
     sweeps : list of ndarray (k, 6), optional
         Per image, the unthresholded period-sweep fits (`SWEEP_COLUMNS`); with
-        ``det`` (and ``det.period_sweep``) that stage is OR-ed in for every
+        ``det`` (and the sweep on in ``det``) that stage is OR-ed in for every
         ``grid.sweep_combos()``.
 
     Returns
@@ -556,13 +559,13 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
     cand_total = valid[:, 0, :].sum(axis=1)
     fold_variants: list[tuple[tuple, np.ndarray | bool]] = [((), False)]
     if folds is not None and det is not None:
-        fold_variants = [((("fold_min_rho", r),),
-                          fold_protected(folds, det.replace(fold_min_rho=r)))
+        fold_variants = [((("fold.min_rho", r),),
+                          fold_protected(folds, det.with_values({"fold.min_rho": r})))
                          for r in fold_min_rho]
-    if sweeps is not None and det is not None and det.period_sweep:
+    if sweeps is not None and det is not None and det.sweep is not None:
         sweep_variants = [(tuple(zip(SWEEP_KEYS, combo, strict=True)),
-                           sweep_protected(sweeps, det.replace(**dict(zip(SWEEP_KEYS, combo,
-                                                                          strict=True)))))
+                           sweep_protected(sweeps, det.with_values(
+                               dict(zip(SWEEP_KEYS, combo, strict=True)))))
                           for combo in grid.sweep_combos()]
         fold_variants = [(fp + sp, fo | so) for fp, fo in fold_variants
                          for sp, so in sweep_variants]
@@ -586,9 +589,10 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
             for fold_params, fold_ok in fold_variants:
                 si = len(settings)
                 settings.append(Setting("default", (
-                    ("peak_false_prob", fp), ("tone_rel_tol", tol), ("min_occupancy", occ_lo),
-                    ("max_occupancy", occ_hi), ("min_purity", mp), ("min_tones", mt),
-                    ("min_tones_rgb", mt_rgb), *fold_params)))
+                    ("tones.peak_false_prob", fp), ("tones.rel_tol", tol),
+                    ("tones.min_occupancy", occ_lo), ("tones.max_occupancy", occ_hi),
+                    ("tones.min_purity", mp), ("tones.min_tones", mt),
+                    ("tones.min_tones_rgb", mt_rgb), *fold_params)))
                 prot[si] = ok | fold_ok
                 hits[si] = n_enough
     return settings, prot, hits, cand_total
@@ -613,10 +617,11 @@ def paper_scores(peaks: list[dict], config: AppConfig, grid: PaperGrid
             m_b = np.array([[count_ratio_matches(f, s.ratio_values(), tol) for s in specs]
                             for f in f_list]).reshape(n_img, len(specs))
             for g in grid.gamma:
-                det = config.detector.replace(gamma=g)
+                det = config.detector.with_values({"paper.gamma": g})
                 need = np.array([required_matches(s, det) for s in specs])
-                settings.append(Setting("paper", (("n_b", n_b), ("max_peaks", m_p),
-                                                  ("ratio_tol", tol), ("gamma", g))))
+                settings.append(Setting("paper", (("paper.n_b", n_b), ("paper.max_peaks", m_p),
+                                                  ("paper.ratio_tol", tol),
+                                                  ("paper.gamma", g))))
                 prot.append((m_b >= need[None, :]).any(axis=1))
                 hits.append(m_b.sum(axis=1).astype(float))
     # cand_total differs per (n_b, M_p); return it per setting
@@ -1064,24 +1069,24 @@ def _chance_match_prob(n_frames: int, q: float, band_log: float, tone_logs: np.n
     from scipy.stats import poisson
 
     m_tones = tone_logs.size
-    a = 2 * math.log1p(det.tone_rel_tol)
+    a = 2 * math.log1p(det.tones.rel_tol)
     if band_log <= 0 or q <= 0 or n_frames < 2:
         return 0.0
     lam_t = n_frames * q * min(1.0, a / band_log)
     lam_o = n_frames * q * max(0.0, 1 - m_tones * a / band_log)
-    k_min = max(math.ceil(det.min_occupancy * n_frames - 1e-9), 2)
-    k_max = math.floor(det.max_occupancy * n_frames + 1e-9)
+    k_min = max(math.ceil(det.tones.min_occupancy * n_frames - 1e-9), 2)
+    k_max = math.floor(det.tones.max_occupancy * n_frames + 1e-9)
     c = np.arange(cap + 1)
     pmf = poisson.pmf(c, lam_t)
     grids = np.meshgrid(*([c] * m_tones), indexing="ij")
     counts = np.stack([g.ravel() for g in grids])  # (M, cap^M)
     prob = np.prod(pmf[counts], axis=0)
     hit = (counts >= k_min) & (counts <= k_max)
-    enough = hit.sum(axis=0) >= min(det.min_tones, m_tones)
+    enough = hit.sum(axis=0) >= min(det.tones.min_tones, m_tones)
     hit_sum = (counts * hit).sum(axis=0)
     all_sum = counts.sum(axis=0)
-    if det.min_purity > 0:
-        o_max = np.floor(hit_sum / det.min_purity - all_sum + 1e-9)
+    if det.tones.min_purity > 0:
+        o_max = np.floor(hit_sum / det.tones.min_purity - all_sum + 1e-9)
     else:
         o_max = np.full(all_sum.shape, np.inf)
     p_o = np.where(o_max >= 0, poisson.cdf(np.minimum(o_max, 1e9), lam_o), 0.0)
@@ -1095,7 +1100,7 @@ def null_model_far(evidence, config: AppConfig, *, q: float | None = None) -> di
     ----------
     evidence : Evidence
         Supplies the tracks (frames, band) of the luma plane on each axis; judged at
-        ``config.detector.peak_false_prob``.
+        ``config.detector.tones.peak_false_prob``.
     config : AppConfig
         Detector settings and policies (monochrome specs only; see module docstring).
     q : float, optional
@@ -1109,13 +1114,13 @@ def null_model_far(evidence, config: AppConfig, *, q: float | None = None) -> di
         candidate reaches min_tones without the purity test, union over scales and tracks).
     """
     det = config.detector
-    ev = evidence.with_false_prob(det.peak_false_prob)
+    ev = evidence.with_false_prob(det.tones.peak_false_prob)
     sdet = scaled_detector(det, ev.row_scale)
     s_lo, s_hi = scale_range_cpr_per_hz(sdet)
-    a = 2 * math.log1p(det.tone_rel_tol)
+    a = 2 * math.log1p(det.tones.rel_tol)
     mono = [s for s in _specs(config) if not s.is_rgb]
     e_total, p_cands = 0.0, []
-    no_purity = det.replace(min_purity=0.0)
+    no_purity = det.with_values({"tones.min_purity": 0.0})
     for planes in ev.axes.values():
         lum = planes.get("L")
         if lum is None:

@@ -22,6 +22,13 @@ from lishield_guard.spec import PRESETS, BarcodeSpec
 __all__ = [
     "AppConfig",
     "DetectorConfig",
+    "FitConfig",
+    "FoldConfig",
+    "PaperConfig",
+    "ProfileConfig",
+    "ScreenConfig",
+    "SweepConfig",
+    "ToneConfig",
     "Limits",
     "Policy",
     "default_config",
@@ -32,18 +39,46 @@ __all__ = [
 
 DEFAULT_CONFIG_RESOURCE = "default.toml"
 FIT_RHO_FLOOR = 0.8  # detector.fit: below this fit rho the look-alike is not fitted (gain 0)
-PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit_*_periodic path
+PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit's periodic path
+FINITE = 1e300  # bounds of a setting that must be finite
+
+
+def _need(ok: bool, what: str, value: Any) -> None:
+    """Raise a ConfigError naming ``what`` and the value given unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"need {what}, got {value!r}")
+
+
+def _count(value: Any, name: str) -> None:
+    """``value`` must be an integer >= 1."""
+    _need(isinstance(value, (int, float)) and int(value) == value and value >= 1,
+          f"integer {name} >= 1", value)
+
+
+def _prob(value: Any, name: str) -> None:
+    """``value`` must lie strictly between 0 and 1."""
+    _need(isinstance(value, (int, float)) and 0 < value < 1, f"0 < {name} < 1", value)
+
+
+def _number(value: Any, name: str, lo: float = -math.inf, hi: float = math.inf) -> None:
+    """``value`` must be a number in [lo, hi] (not nan; finite unless a bound is infinite)."""
+    ok = isinstance(value, (int, float)) and lo <= value <= hi
+    _need(ok, f"{name} in [{lo:g}, {hi:g}]" if math.isfinite(lo) or math.isfinite(hi)
+          else f"a number for {name}", value)
+
+
+class _Group:
+    """Shared behaviour of the detector's per-stage settings."""
+
+    def replace(self, **changes: Any):
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
 
 
 @dataclass(frozen=True)
-class DetectorConfig:
-    """Every tunable number of the detector. Profiles: ``"default"`` and ``"paper"``.
+class PaperConfig(_Group):
+    """The paper profile: Algorithm 1 (Sec. 5 and 7.3).
 
-    The field defaults are the shipped, calibrated ``lishield_guard/data/default.toml``
-    (``DetectorConfig() == default_config().detector``; a test keeps the two equal).
-
-    Paper profile (Algorithm 1, Sec. 5 and 7.3)
-    -------------------------------------------
     n_block_rows, n_block_cols : int
         n_br x n_bc block grid (paper: n_b = 4).
     nominal_row_rate_hz : float
@@ -58,9 +93,34 @@ class DetectorConfig:
         gamma of M_b = ceil(gamma * M_R + M_att) (paper: 2 x 5% = 0.1).
     m_att : int
         M_att, ratios an exposure attack may remove (paper: 2).
+    """
 
-    Default profile
-    ---------------
+    n_block_rows: int = 4
+    n_block_cols: int = 4
+    nominal_row_rate_hz: float = 30_000.0
+    band_hz: tuple[float, float] = (400.0, 15_000.0)
+    max_peaks: int = 2
+    ratio_tol: float = 0.05
+    gamma: float = 0.1
+    m_att: int = 2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "band_hz", tuple(float(b) for b in self.band_hz))
+        for name in ("n_block_rows", "n_block_cols", "max_peaks"):
+            _count(getattr(self, name), f"paper.{name}")
+        _need(int(self.m_att) == self.m_att and self.m_att >= 0, "integer paper.m_att >= 0",
+              self.m_att)
+        lo, hi = self.band_hz
+        _need(0 < lo < hi, "0 < paper.band_hz[0] < paper.band_hz[1]", self.band_hz)
+        for name in ("ratio_tol", "gamma", "nominal_row_rate_hz"):
+            v = getattr(self, name)
+            _need(math.isfinite(v) and v > 0, f"paper.{name} > 0", v)
+
+
+@dataclass(frozen=True)
+class ProfileConfig(_Group):
+    """Decode and row profiles, shared by every stage of the default profile.
+
     n_col_blocks : int
         Full-height column blocks whose row profiles must agree (the LED is the same in every
         column; scene texture is not).
@@ -68,9 +128,78 @@ class DetectorConfig:
         Plausible sensor row rates; with ``max_downscale`` they bound the band in cycles/row.
     max_downscale : float
         Largest factor by which an upload may have been shrunk (>= 1).
+    orientations : {"both", "rows"}
+        Also analyse columns, so rotation baked into pixels is still detected.
+    fast_decode : bool
+        Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
+        False decodes full colour with Pillow first (the reference the fast path is measured
+        against).
+    max_decode_rows : int
+        JPEGs taller than twice this are decoded at 1/2, 1/4 or 1/8 scale in the DCT domain,
+        keeping at least this many rows (0 disables). Row frequencies scale with it and the
+        matcher accounts for the factor.
+    """
+
+    n_col_blocks: int = 8
+    min_row_rate_hz: float = 30_000.0
+    max_row_rate_hz: float = 120_000.0
+    max_downscale: float = 4.0
+    orientations: Literal["both", "rows"] = "both"
+    fast_decode: bool = True
+    max_decode_rows: int = 768
+
+    def __post_init__(self) -> None:
+        _count(self.n_col_blocks, "profiles.n_col_blocks")
+        _need(0 < self.min_row_rate_hz < self.max_row_rate_hz,
+              "0 < profiles.min_row_rate_hz < profiles.max_row_rate_hz",
+              (self.min_row_rate_hz, self.max_row_rate_hz))
+        _need(self.max_downscale >= 1, "profiles.max_downscale >= 1", self.max_downscale)
+        _need(self.orientations in ("both", "rows"), "profiles.orientations 'both' or 'rows'",
+              self.orientations)
+        _need(int(self.max_decode_rows) == self.max_decode_rows and self.max_decode_rows >= 0,
+              "integer profiles.max_decode_rows >= 0", self.max_decode_rows)
+
+
+@dataclass(frozen=True)
+class ScreenConfig(_Group):
+    """The first stage (`detector.screen`): a plane goes on to the pattern search only when
+    some short-time track holds column-coherent stripes.
+
+    false_prob : float
+        A track must have ``min_frames`` frames whose peak passes the significance test at
+        this per-frame false-pass probability (looser than ``tones.peak_false_prob``, so every
+        frame that the tone tracks count also passes the screen).
+    min_frames : int
+        Frames a track must hold above the screen's threshold (>= 1).
+    partial_false_prob : float or None
+        For a light covering part of the frame: a plane that fails the test on all its column
+        blocks still passes when one half of its column sub-blocks (left, centre or right)
+        has ``partial_min_frames`` frames significant at this per-frame probability, shared
+        by the three halves. None: halves are not tested.
+    partial_min_frames : int
+        Frames a track of one half must hold above the halves' threshold (>= 1).
+    """
+
+    false_prob: float = 0.01
+    min_frames: int = 2
+    partial_false_prob: float | None = 1e-3
+    partial_min_frames: int = 3
+
+    def __post_init__(self) -> None:
+        _prob(self.false_prob, "screen.false_prob")
+        if self.partial_false_prob is not None:
+            _prob(self.partial_false_prob, "screen.partial_false_prob (or off)")
+        _count(self.min_frames, "screen.min_frames")
+        _count(self.partial_min_frames, "screen.partial_min_frames")
+
+
+@dataclass(frozen=True)
+class ToneConfig(_Group):
+    """Tone tracks (`detector.tones`): a spec's tones matched on the band tracks.
+
     peak_false_prob : float
         Probability that one spectral bin of pure noise passes the significance test.
-    tone_rel_tol : float
+    rel_tol : float
         Relative tolerance between a detected tone and a preset tone at the fitted scale.
     min_tones : int
         Tones a monochrome barcode must show (M - 1 survives the exposure attack).
@@ -82,204 +211,279 @@ class DetectorConfig:
         between M tones; mains and PWM flicker hold one frequency all frame long).
     min_purity : float
         Fraction of significant band samples the matched tones must explain (unitless).
-    orientations : {"both", "rows"}
-        Also analyse columns, so rotation baked into pixels is still detected.
-    fold_min_rho : float
-        Pattern folding (detector/fold.py): smallest normalised correlation between the folded row
-        signal and a spec's template that counts as that barcode (unitless, 0-1).
-    fold_min_snr : float
-        Pattern folding: the folded pattern's power over its noise power must exceed this.
-    fold_min_margin : float
-        Pattern folding: the spec's template must beat the best stationary look-alike (k equal
-        square or sine cycles per period: PWM, mains, periodic texture) by this much rho.
-    period_sweep : bool
-        When folding finds nothing, slide each spec's template over the frame at every
-        possible period (fold.sweep_match): catches barcodes whose frame holds under two
-        pattern periods, at some cost in time.
-    sweep_min_rho : float
-        Period sweep: smallest normalised correlation of the tiled template with the rows.
-    sweep_min_margin : float
-        Period sweep: the template must beat the best stationary look-alike by this much rho.
-    model_fit : bool
-        Refine the sweep's best grid fits with the exact capture model (`fit.refine`):
-        linear light, the pattern integrated over each row's exposure, continuous period,
-        c_1, phase and exposure; the stationary look-alike is refined the same way.
-    fit_min_rho : float
-        Exact-model fit: smallest correlation of the template with the linear rows.
-    fit_min_gain : float
-        Exact-model fit: energy explained beyond the refined look-alike over the energy left
-        unexplained, (rho^2 - rho_lookalike^2) / (1 - rho^2). The fit's coherence t must also
-        reach ``sweep_min_coherence``.
-    fit_min_rho_rgb, fit_min_gain_rgb, fit_max_leak_rgb : float
-        A second, colour-verified way for a channel of an RGB barcode to pass: its fit needs
-        only these rho and gain when the fitted template's amplitudes in the R, G, B planes
-        point at its own channel (`fit.chroma_leak` <= ``fit_max_leak_rgb``; a grey
-        scene's structure shows in all three planes alike, leak sqrt 2). 0 leak turns this
-        path off.
-    fit_min_rho_periodic, fit_min_gain_periodic : float
-        A second way for an exact fit to pass when the frame holds at least
-        `PERIODIC_MIN_PERIODS` (2) pattern periods: the template then repeats within the rows,
-        so only rows that repeat (a periodic light or texture, which the stationary
-        look-alike models) can fit it well, and a lower gain suffices. With fewer periods a
-        one-period template bends to fit unrepeated scene rows (on natural scenes under
-        steady light, such fits reach gains of 4-6 at rho >= 0.94). Gain inf turns this path
-        off.
-    sweep_min_coherence : float
-        Period sweep: t statistic of the template's amplitude across column blocks (the LED
-        adds the same log contrast to every block; scene structure does not).
-    tone_min_fit_gain : float
+    min_fit_gain : float or None
         Tone tracks alone do not decide: a spec whose tones match on an axis is protected by
         them only when one of that spec's exact-model fits on the same axis (rho >= 0.8,
-        coherence t >= ``sweep_min_coherence``) explains the rows at least this much better
+        coherence t >= ``sweep.min_coherence``) explains the rows at least this much better
         than the best steady square wave (the fit's gain). One steady tone whose frequency
         estimate jitters between windows, or a PWM light whose fundamental and harmonic
         dominate different parts of the frame, can look like two alternating tones; the
-        look-alike fits those rows as well as the barcode. -inf turns the check off.
-    screen_false_prob : float or None
-        First stage: a plane goes on to the pattern search only when some short-time track
-        has ``screen_min_frames`` frames whose peak passes the significance test at this
-        per-frame false-pass probability (looser than ``peak_false_prob``, so every frame
-        that the tone tracks count also passes the screen). None turns the screen off.
-    screen_min_frames : int
-        Frames a track must hold above the screen's threshold (>= 1).
-    screen_partial_false_prob : float or None
-        First stage, for a light covering part of the frame: a plane that fails the test on
-        all its column blocks still passes when one half of its column sub-blocks (left,
-        centre or right) has ``screen_partial_min_frames`` frames significant at this
-        per-frame probability, shared by the three halves. None: halves are not tested.
-    screen_partial_min_frames : int
-        Frames a track of one half must hold above the halves' threshold (>= 1).
-    fast_decode : bool
-        Decode JPEG luma straight to gray with libjpeg-turbo (and colour only when needed);
-        False decodes full colour with Pillow first (the reference the fast path is measured
-        against).
-    max_decode_rows : int
-        JPEGs taller than twice this are decoded at 1/2, 1/4 or 1/8 scale in the DCT domain,
-        keeping at least this many rows (0 disables). Row frequencies scale with it and the
-        matcher accounts for the factor.
+        look-alike fits those rows as well as the barcode. None: the tones decide alone (also
+        when the sweep or the fit is off).
     """
 
-    profile: Literal["default", "paper"] = "default"
-    # --- paper profile
-    n_block_rows: int = 4
-    n_block_cols: int = 4
-    nominal_row_rate_hz: float = 30_000.0
-    band_hz: tuple[float, float] = (400.0, 15_000.0)
-    max_peaks: int = 2
-    ratio_tol: float = 0.05
-    gamma: float = 0.1
-    m_att: int = 2
-    # --- default profile
-    n_col_blocks: int = 8
-    min_row_rate_hz: float = 30_000.0
-    max_row_rate_hz: float = 120_000.0
-    max_downscale: float = 4.0
     peak_false_prob: float = 0.001
-    tone_rel_tol: float = 0.05
+    rel_tol: float = 0.05
     min_tones: int = 2
     min_tones_rgb: int = 3
     min_occupancy: float = 0.08
     max_occupancy: float = 0.8
     min_purity: float = 0.3
-    orientations: Literal["both", "rows"] = "both"
-    fold_min_rho: float = 0.85
-    fold_min_snr: float = 30.0
-    fold_min_margin: float = 0.05
-    period_sweep: bool = True
-    sweep_min_rho: float = 0.7
-    sweep_min_margin: float = 0.3
-    sweep_min_coherence: float = 3.0
-    model_fit: bool = True
-    fit_min_rho: float = 0.9
-    fit_min_gain: float = 8.0
-    fit_min_rho_rgb: float = 0.85
-    fit_min_gain_rgb: float = 1.0
-    fit_max_leak_rgb: float = 0.3
-    fit_min_rho_periodic: float = 0.85
-    fit_min_gain_periodic: float = 2.0
-    tone_min_fit_gain: float = 0.5
-    screen_false_prob: float | None = 0.01
-    screen_min_frames: int = 2
-    screen_partial_false_prob: float | None = 1e-3
-    screen_partial_min_frames: int = 3
-    fast_decode: bool = True
-    max_decode_rows: int = 768
+    min_fit_gain: float | None = 0.5
+
+    def __post_init__(self) -> None:
+        _prob(self.peak_false_prob, "tones.peak_false_prob")
+        _need(math.isfinite(self.rel_tol) and self.rel_tol > 0, "tones.rel_tol > 0",
+              self.rel_tol)
+        _count(self.min_tones, "tones.min_tones")
+        _count(self.min_tones_rgb, "tones.min_tones_rgb")
+        _need(0 <= self.min_occupancy < self.max_occupancy <= 1,
+              "0 <= tones.min_occupancy < tones.max_occupancy <= 1",
+              (self.min_occupancy, self.max_occupancy))
+        _number(self.min_purity, "tones.min_purity", 0.0, 1.0)
+        if self.min_fit_gain is not None:
+            _need(isinstance(self.min_fit_gain, (int, float))
+                  and math.isfinite(self.min_fit_gain),
+                  "a finite tones.min_fit_gain (or off)", self.min_fit_gain)
+
+
+@dataclass(frozen=True)
+class FoldConfig(_Group):
+    """Pattern folding (`detector.fold`).
+
+    min_rho : float
+        Smallest normalised correlation between the folded row signal and a spec's template
+        that counts as that barcode (unitless, 0-1).
+    min_snr : float
+        The folded pattern's power over its noise power must exceed this.
+    min_margin : float
+        The spec's template must beat the best stationary look-alike (k equal square or sine
+        cycles per period: PWM, mains, periodic texture) by this much rho.
+    """
+
+    min_rho: float = 0.85
+    min_snr: float = 30.0
+    min_margin: float = 0.05
+
+    def __post_init__(self) -> None:
+        _number(self.min_rho, "fold.min_rho", -1.0, 2.0)
+        _number(self.min_snr, "fold.min_snr", -FINITE, FINITE)
+        _number(self.min_margin, "fold.min_margin", -FINITE, FINITE)
+
+
+@dataclass(frozen=True)
+class SweepConfig(_Group):
+    """The period sweep (`detector.sweep`): each spec's template slid over the frame at every
+    possible period; catches barcodes whose frame holds under two pattern periods.
+
+    min_rho : float
+        Smallest normalised correlation of the tiled template with the rows.
+    min_margin : float
+        The template must beat the best stationary look-alike by this much rho.
+    min_coherence : float
+        t statistic of the template's amplitude across column blocks (the LED adds the same
+        log contrast to every block; scene structure does not); the exact fit's too.
+    """
+
+    min_rho: float = 0.7
+    min_margin: float = 0.3
+    min_coherence: float = 3.0
+
+    def __post_init__(self) -> None:
+        _number(self.min_rho, "sweep.min_rho", -1.0, 2.0)
+        _number(self.min_margin, "sweep.min_margin", -1.0, 2.0)
+        _number(self.min_coherence, "sweep.min_coherence", -FINITE, FINITE)
+
+
+@dataclass(frozen=True)
+class FitConfig(_Group):
+    """The exact-model fit (`detector.fit.refine`) of the sweep's best grid fits: linear
+    light, the pattern integrated over each row's exposure, continuous period, c_1, phase and
+    exposure; the stationary look-alike is refined the same way. Every path needs the fit's
+    coherence t to reach ``sweep.min_coherence``.
+
+    min_rho : float
+        Smallest correlation of the template with the linear rows.
+    min_gain : float
+        Energy explained beyond the refined look-alike over the energy left unexplained,
+        (rho^2 - rho_lookalike^2) / (1 - rho^2); inf: this path never passes.
+    min_rho_rgb, min_gain_rgb : float
+        A second, colour-verified way for a channel of an RGB barcode to pass ...
+    max_leak_rgb : float or None
+        ... when the fitted template's amplitudes in the R, G, B planes point at its own
+        channel (`fit.chroma_leak` <= this; a grey scene's structure shows in all three planes
+        alike, leak sqrt 2). None: no colour-verified path.
+    min_rho_periodic : float
+        A third way to pass when the frame holds at least `PERIODIC_MIN_PERIODS` (2) pattern
+        periods: the template then repeats within the rows, so only rows that repeat (a
+        periodic light or texture, which the stationary look-alike models) can fit it well,
+        and a lower gain suffices. With fewer periods a one-period template bends to fit
+        unrepeated scene rows (on natural scenes under steady light, such fits reach gains
+        of 4-6 at rho >= 0.94).
+    min_gain_periodic : float or None
+        The periodic path's gain; None: no periodic path.
+    """
+
+    min_rho: float = 0.9
+    min_gain: float = 8.0
+    min_rho_rgb: float = 0.85
+    min_gain_rgb: float = 1.0
+    max_leak_rgb: float | None = 0.3
+    min_rho_periodic: float = 0.85
+    min_gain_periodic: float | None = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("min_rho", "min_rho_rgb", "min_rho_periodic"):
+            _number(getattr(self, name), f"fit.{name} (look-alikes are only fitted above "
+                    f"{FIT_RHO_FLOOR})", FIT_RHO_FLOOR, 1.0)
+        _number(self.min_gain, "fit.min_gain (inf: this path off)", -math.inf, math.inf)
+        _number(self.min_gain_rgb, "fit.min_gain_rgb", -math.inf, math.inf)
+        if self.max_leak_rgb is not None:
+            _number(self.max_leak_rgb, "fit.max_leak_rgb (or off)", 0.0, math.inf)
+        if self.min_gain_periodic is not None:
+            _number(self.min_gain_periodic, "fit.min_gain_periodic (or off)", -math.inf,
+                    math.inf)
+
+
+STAGES: dict[str, type] = {"profiles": ProfileConfig, "screen": ScreenConfig,
+                           "tones": ToneConfig, "fold": FoldConfig, "sweep": SweepConfig,
+                           "fit": FitConfig, "paper": PaperConfig}
+OPTIONAL_STAGES = ("screen", "fold", "sweep", "fit")  # None (``false`` in TOML): stage off
+OPTIONAL_FIELDS = {("screen", "partial_false_prob"), ("tones", "min_fit_gain"),
+                   ("fit", "max_leak_rgb"), ("fit", "min_gain_periodic")}
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Every tunable number of the detector, grouped by the stage that reads it.
+
+    Profiles: ``"default"`` (stages in order: ``profiles``, ``screen``, ``tones``, ``fold``,
+    ``sweep``, ``fit``) and ``"paper"`` (``paper``). A stage set to None is off; so is an
+    optional field set to None (in TOML: ``false``). The field defaults are the shipped,
+    calibrated ``lishield_guard/data/default.toml`` (``DetectorConfig() ==
+    default_config().detector``; a test keeps the two equal). Each group documents its fields.
+
+    Dotted names (``"fit.min_gain"``) address one field (`values`, `with_values`); calibration
+    sweeps and its reports use them.
+    """
+
+    profile: Literal["default", "paper"] = "default"
+    profiles: ProfileConfig = field(default_factory=ProfileConfig)
+    screen: ScreenConfig | None = field(default_factory=ScreenConfig)
+    tones: ToneConfig = field(default_factory=ToneConfig)
+    fold: FoldConfig | None = field(default_factory=FoldConfig)
+    sweep: SweepConfig | None = field(default_factory=SweepConfig)
+    fit: FitConfig | None = field(default_factory=FitConfig)
+    paper: PaperConfig = field(default_factory=PaperConfig)
 
     def __post_init__(self) -> None:
         if self.profile not in ("default", "paper"):
             raise ConfigError(f"profile must be 'default' or 'paper', got {self.profile!r}")
-        object.__setattr__(self, "band_hz", tuple(float(b) for b in self.band_hz))
-        for name in ("n_block_rows", "n_block_cols", "max_peaks", "n_col_blocks", "min_tones",
-                     "min_tones_rgb"):
-            v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")
-        if self.m_att < 0:
-            raise ConfigError(f"need m_att >= 0, got m_att={self.m_att!r}")
-        lo, hi = self.band_hz
-        if not 0 < lo < hi:
-            raise ConfigError(f"need 0 < band_hz[0] < band_hz[1], got band_hz={self.band_hz!r}")
-        if not 0 < self.min_row_rate_hz < self.max_row_rate_hz:
-            raise ConfigError(f"need 0 < min_row_rate_hz={self.min_row_rate_hz!r} < "
-                              f"max_row_rate_hz={self.max_row_rate_hz!r}")
-        if self.max_downscale < 1:
-            raise ConfigError(f"need max_downscale >= 1, got {self.max_downscale!r}")
-        if not 0 < self.peak_false_prob < 1:
-            raise ConfigError(f"need 0 < peak_false_prob < 1, got {self.peak_false_prob!r}")
-        if not 0 <= self.min_occupancy < self.max_occupancy <= 1:
-            raise ConfigError(f"need 0 <= min_occupancy={self.min_occupancy!r} < "
-                              f"max_occupancy={self.max_occupancy!r} <= 1")
-        for name in ("fold_min_rho", "sweep_min_rho", "sweep_min_margin"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and -1 <= v <= 2):
-                raise ConfigError(f"need {name} in [-1, 2], got {name}={v!r}")
-        if not (math.isfinite(self.fit_min_rho) and FIT_RHO_FLOOR <= self.fit_min_rho <= 1):
-            raise ConfigError(f"need {FIT_RHO_FLOOR} <= fit_min_rho <= 1 (look-alikes are only "
-                              f"fitted above {FIT_RHO_FLOOR}), got {self.fit_min_rho!r}")
-        for name in ("fit_min_rho_rgb", "fit_min_rho_periodic"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and FIT_RHO_FLOOR <= v <= 1):
-                raise ConfigError(f"need {FIT_RHO_FLOOR} <= {name} <= 1, got {v!r}")
-        for name in ("fit_min_gain", "fit_min_gain_rgb", "fit_min_gain_periodic"):
-            if math.isnan(getattr(self, name)):
-                raise ConfigError(f"need a number (or inf: no exact-model verdicts) for {name}, "
-                                  f"got nan")
-        if math.isnan(self.tone_min_fit_gain) or self.tone_min_fit_gain == math.inf:
-            raise ConfigError(f"need tone_min_fit_gain < inf (-inf: off), got "
-                              f"{self.tone_min_fit_gain!r}")
-        if self.screen_false_prob is not None and not 0 < self.screen_false_prob < 1:
-            raise ConfigError(f"need 0 < screen_false_prob < 1 (or None: no screen), got "
-                              f"screen_false_prob={self.screen_false_prob!r}")
-        if (self.screen_partial_false_prob is not None
-                and not 0 < self.screen_partial_false_prob < 1):
-            raise ConfigError(f"need 0 < screen_partial_false_prob < 1 (or None: halves not "
-                              f"tested), got screen_partial_false_prob="
-                              f"{self.screen_partial_false_prob!r}")
-        for name in ("screen_min_frames", "screen_partial_min_frames"):
-            v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ConfigError(f"need integer {name} >= 1, got {name}={v!r}")
-        if not self.fit_max_leak_rgb >= 0:
-            raise ConfigError(f"need fit_max_leak_rgb >= 0 (0: off), got "
-                              f"{self.fit_max_leak_rgb!r}")
-        for name in ("fold_min_snr", "sweep_min_coherence"):
-            v = getattr(self, name)
-            if not math.isfinite(v):
-                raise ConfigError(f"need a finite {name}, got {name}={v!r}")
-        if not 0 <= self.min_purity <= 1:
-            raise ConfigError(f"need 0 <= min_purity <= 1, got {self.min_purity!r}")
-        for name in ("ratio_tol", "tone_rel_tol", "gamma", "nominal_row_rate_hz"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"need {name} > 0, got {name}={v!r}")
-        if int(self.max_decode_rows) != self.max_decode_rows or self.max_decode_rows < 0:
-            raise ConfigError(f"need integer max_decode_rows >= 0, got {self.max_decode_rows!r}")
-        if self.orientations not in ("both", "rows"):
-            raise ConfigError(f"orientations must be 'both' or 'rows', got {self.orientations!r}")
+        for name, cls in STAGES.items():
+            group = getattr(self, name)
+            if isinstance(group, dict):  # built from a table: validated by the group
+                object.__setattr__(self, name, _group_from_table(cls, group, name))
+            elif group is None and name not in OPTIONAL_STAGES:
+                raise ConfigError(f"the {name} settings cannot be off")
+            elif group is not None and not isinstance(group, cls):
+                raise ConfigError(f"{name}: need a table of settings, got {group!r}")
 
     def replace(self, **changes: Any) -> DetectorConfig:
-        """A copy with some fields changed (validated again)."""
+        """A copy with some groups (or the profile) changed (validated again)."""
         return dataclasses.replace(self, **changes)
+
+    def with_values(self, values: dict[str, Any]) -> DetectorConfig:
+        """A copy with fields changed by dotted name (``{"fit.min_gain": 5.0}``)."""
+        by_group: dict[str, dict[str, Any]] = {}
+        top: dict[str, Any] = {}
+        for key, value in values.items():
+            group, dot, name = key.partition(".")
+            if not dot:
+                top[key] = value
+                continue
+            if group not in STAGES:
+                raise ConfigError(f"unknown detector setting {key!r}")
+            by_group.setdefault(group, {})[name] = value
+        for group, changes in by_group.items():
+            current = getattr(self, group)
+            if current is None:
+                raise ConfigError(f"cannot set {sorted(changes)!r} of {group}: the stage is off")
+            top[group] = current.replace(**changes)
+        return self.replace(**top)
+
+    def values(self) -> dict[str, Any]:
+        """Every field by dotted name (a stage that is off: its name -> None)."""
+        out: dict[str, Any] = {"profile": self.profile}
+        for name in STAGES:
+            group = getattr(self, name)
+            if group is None:
+                out[name] = None
+            else:
+                out.update({f"{name}.{k}": v for k, v in dataclasses.asdict(group).items()})
+        return out
+
+
+def _group_from_table(cls: type, table: dict, name: str):
+    """One stage's settings from its TOML table (``false`` for an optional field: None)."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    bad = set(table) - known
+    if bad:
+        raise ConfigError(f"unknown [detector.{name}] keys {sorted(bad)!r}; known: "
+                          f"{', '.join(sorted(known))}")
+    kwargs = {}
+    for key, value in table.items():
+        if value is False and (name, key) in OPTIONAL_FIELDS:
+            value = None
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+# flat [detector] keys of config files written before the settings were grouped
+LEGACY_KEYS: dict[str, str] = {
+    **{k: f"paper.{k}" for k in ("n_block_rows", "n_block_cols", "nominal_row_rate_hz",
+                                  "band_hz", "max_peaks", "ratio_tol", "gamma", "m_att")},
+    **{k: f"profiles.{k}" for k in ("n_col_blocks", "min_row_rate_hz", "max_row_rate_hz",
+                                     "max_downscale", "orientations", "fast_decode",
+                                     "max_decode_rows")},
+    "peak_false_prob": "tones.peak_false_prob", "tone_rel_tol": "tones.rel_tol",
+    "min_tones": "tones.min_tones", "min_tones_rgb": "tones.min_tones_rgb",
+    "min_occupancy": "tones.min_occupancy", "max_occupancy": "tones.max_occupancy",
+    "min_purity": "tones.min_purity", "tone_min_fit_gain": "tones.min_fit_gain",
+    "screen_false_prob": "screen.false_prob", "screen_min_frames": "screen.min_frames",
+    "screen_partial_false_prob": "screen.partial_false_prob",
+    "screen_partial_min_frames": "screen.partial_min_frames",
+    "fold_min_rho": "fold.min_rho", "fold_min_snr": "fold.min_snr",
+    "fold_min_margin": "fold.min_margin",
+    "sweep_min_rho": "sweep.min_rho", "sweep_min_margin": "sweep.min_margin",
+    "sweep_min_coherence": "sweep.min_coherence",
+    **{f"fit_{k}": f"fit.{k}" for k in ("min_rho", "min_gain", "min_rho_rgb", "min_gain_rgb",
+                                         "max_leak_rgb", "min_rho_periodic",
+                                         "min_gain_periodic")},
+}
+
+
+def _ungroup_legacy(det: dict, source: str) -> dict:
+    """A flat ``[detector]`` table of an earlier version as grouped tables; the old ways of
+    saying "off" (``period_sweep = false``, ``model_fit = false``, ``screen_false_prob``
+    left out, ``tone_min_fit_gain = -inf``, ``fit_max_leak_rgb = 0``,
+    ``fit_min_gain_periodic = inf``) become ``false``."""
+    out: dict[str, Any] = {}
+    for key, value in det.items():
+        if key in LEGACY_KEYS:
+            group, name = LEGACY_KEYS[key].split(".")
+            if (key, value) in (("tone_min_fit_gain", -math.inf), ("fit_max_leak_rgb", 0),
+                                ("fit_min_gain_periodic", math.inf)):
+                value = False
+            if isinstance(out.get(group), dict) or group not in out:
+                out.setdefault(group, {})[name] = value
+        elif key in ("period_sweep", "model_fit"):
+            if value is False:
+                out["sweep" if key == "period_sweep" else "fit"] = False
+        elif key == "profile":
+            out[key] = value
+        else:
+            raise ConfigError(f"{source}: unknown [detector] key {key!r}")
+    return out
 
 
 @dataclass(frozen=True)
@@ -377,11 +581,7 @@ def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
     unknown = set(table) - known
     if unknown:
         raise ConfigError(f"{source}: unknown top-level keys {sorted(unknown)!r}")
-    det_fields = {f.name for f in dataclasses.fields(DetectorConfig)}
-    det = table.get("detector", {})
-    bad = set(det) - det_fields
-    if bad:
-        raise ConfigError(f"{source}: unknown [detector] keys {sorted(bad)!r}")
+    det = _detector_from_table(table.get("detector", {}), source)
     lim = table.get("limits", {})
     bad = set(lim) - {f.name for f in dataclasses.fields(Limits)}
     if bad:
@@ -396,9 +596,37 @@ def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
         policies.append(Policy(id=str(p["id"]), specs=tuple(specs),
                                description=str(p.get("description", ""))))
     try:
-        return AppConfig(detector=DetectorConfig(**det), limits=Limits(**lim),
+        return AppConfig(detector=det, limits=Limits(**lim),
                          policies=tuple(policies), source=source, header=header)
     except TypeError as exc:  # wrong value types reach dataclass construction
+        raise ConfigError(f"{source}: {exc}") from exc
+
+
+def _detector_from_table(det: Any, source: str) -> DetectorConfig:
+    """The DetectorConfig of a ``[detector]`` table: grouped tables (a stage or an
+    optional field set to ``false`` is off) or the flat keys of an earlier version."""
+    if not isinstance(det, dict):
+        raise ConfigError(f"{source}: [detector] must be a table, got {det!r}")
+    if any(k in LEGACY_KEYS or k in ("period_sweep", "model_fit") for k in det):
+        det = _ungroup_legacy(det, source)
+    known = {"profile", *STAGES}
+    bad = set(det) - known
+    if bad:
+        raise ConfigError(f"{source}: unknown [detector] keys {sorted(bad)!r}; known: "
+                          f"{', '.join(sorted(known))}")
+    out: dict[str, Any] = {}
+    for key, value in det.items():
+        if key in OPTIONAL_STAGES and value is False:
+            out[key] = None
+        elif key in STAGES and not isinstance(value, dict):
+            raise ConfigError(f"{source}: [detector.{key}] must be a table"
+                              + (" or false (off)" if key in OPTIONAL_STAGES else "")
+                              + f", got {value!r}")
+        else:
+            out[key] = value
+    try:
+        return DetectorConfig(**out)
+    except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}") from exc
 
 
@@ -426,22 +654,32 @@ def _read_table(path: str | Path | None) -> tuple[dict, str, str]:
 def merge_tables(base: dict, override: dict) -> dict:
     """A user's config table laid over the shipped one.
 
-    ``[detector]`` and ``[limits]`` are merged key by key (keys left out keep the shipped,
-    calibrated values, never the dataclass defaults); a ``policies`` key, when present,
+    ``[limits]`` and each ``[detector.<stage>]`` table are merged key by key (keys left out
+    keep the shipped, calibrated values, never the dataclass defaults; a stage set to
+    ``false`` is off; flat ``[detector]`` keys of earlier versions are read as their groups'),
+    and a ``policies`` key, when present,
     replaces the shipped policies as a whole (``policies = []`` leaves none, which
     `load_config` refuses). Other top-level keys are taken from ``override``.
 
     Examples
     --------
-    >>> merge_tables({"detector": {"a": 1, "b": 2}, "policies": [1]},
-    ...              {"detector": {"b": 3}})
-    {'detector': {'a': 1, 'b': 3}, 'policies': [1]}
+    >>> merge_tables({"detector": {"fit": {"min_rho": 0.9, "min_gain": 8.0}}, "policies": [1]},
+    ...              {"detector": {"fit": {"min_gain": 5.0}}})
+    {'detector': {'fit': {'min_rho': 0.9, 'min_gain': 5.0}}, 'policies': [1]}
     """
     out = {k: v for k, v in base.items() if k != "calibration"}
     for key, value in override.items():
-        if key in ("detector", "limits") and isinstance(value, dict) \
-                and isinstance(out.get(key), dict):
+        if key == "limits" and isinstance(value, dict) and isinstance(out.get(key), dict):
             out[key] = {**out[key], **value}
+        elif key == "detector" and isinstance(value, dict) \
+                and isinstance(out.get(key), dict):
+            if any(k in LEGACY_KEYS or k in ("period_sweep", "model_fit") for k in value):
+                value = _ungroup_legacy(value, "config")
+            merged = dict(out[key])
+            for k, v in value.items():
+                both = isinstance(v, dict) and isinstance(merged.get(k), dict)
+                merged[k] = {**merged[k], **v} if both else v
+            out[key] = merged
         else:
             out[key] = value
     return out
@@ -492,8 +730,12 @@ def dump_config(cfg: AppConfig, *, header: str = "") -> str:
     """Serialise a config to TOML text; ``header`` lines are written as leading comments."""
     import tomli_w
 
-    det = dataclasses.asdict(cfg.detector)
-    det["band_hz"] = list(det["band_hz"])
+    det: dict[str, Any] = {"profile": cfg.detector.profile}
+    for name in STAGES:
+        group = getattr(cfg.detector, name)
+        det[name] = False if group is None else {
+            k: (False if v is None else list(v) if isinstance(v, tuple) else v)
+            for k, v in dataclasses.asdict(group).items()}
     table = {
         "detector": det,
         "limits": dataclasses.asdict(cfg.limits),

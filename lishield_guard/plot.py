@@ -151,7 +151,8 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
             pass
     from lishield_guard.detector.profiles import block_row_profiles, detrend_profiles
 
-    prof = block_row_profiles(plane, n_col_blocks=config.detector.n_col_blocks, axis=axis)
+    prof = block_row_profiles(plane, n_col_blocks=config.detector.profiles.n_col_blocks,
+                              axis=axis)
     prof = np.log(np.maximum(np.asarray(prof, dtype=np.float64), 1e-3))
     contrast, _ = detrend_profiles(prof, sigma_rows=prof.shape[1] / 6.0)
     return contrast, decoded.row_scale
@@ -235,7 +236,8 @@ def _ok(value, need) -> str:
 def _threshold_lines(stage: str, info: dict | None, det, verdict) -> list[str]:
     """The decision's numbers next to the thresholds they were held against."""
     lines: list[str] = []
-    g = lambda name, default=None: getattr(det, name, default)  # noqa: E731
+    values = det.values()  # dotted names; a stage that is off has none of its fields
+    g = lambda name, default=None: values.get(name, default)  # noqa: E731
     if info is None:
         best = _get(verdict.evidence, "best") or {}
         if best:
@@ -246,19 +248,19 @@ def _threshold_lines(stage: str, info: dict | None, det, verdict) -> list[str]:
     n_periods = info.get("n_periods")
     if stage == "exact capture-model fit":
         periodic = (n_periods is not None and n_periods >= 2.0
-                    and g("fit_min_rho_periodic") is not None)
+                    and g("fit.min_gain_periodic") is not None)
         leak = info.get("chroma_leak")
-        rgb = leak is not None and g("fit_max_leak_rgb") is not None and \
-            leak <= g("fit_max_leak_rgb")
-        need_rho, need_gain = g("fit_min_rho"), g("fit_min_gain")
+        rgb = leak is not None and g("fit.max_leak_rgb") is not None and \
+            leak <= g("fit.max_leak_rgb")
+        need_rho, need_gain = g("fit.min_rho"), g("fit.min_gain")
         path = "general"
         if rgb:
-            need_rho = min(need_rho, g("fit_min_rho_rgb", need_rho))
-            need_gain = min(need_gain, g("fit_min_gain_rgb", need_gain))
+            need_rho = min(need_rho, g("fit.min_rho_rgb", need_rho))
+            need_gain = min(need_gain, g("fit.min_gain_rgb", need_gain))
             path = "colour-verified"
         if periodic:
-            need_rho = min(need_rho, g("fit_min_rho_periodic", need_rho))
-            need_gain = min(need_gain, g("fit_min_gain_periodic", need_gain))
+            need_rho = min(need_rho, g("fit.min_rho_periodic", need_rho))
+            need_gain = min(need_gain, g("fit.min_gain_periodic", need_gain))
             path += ", >= 2 periods"
         lines.append(f"{_ok(rho, need_rho)} correlation rho {rho:.3f}   (needs >= {need_rho:g};"
                      f" {path} path)" if rho is not None and need_rho is not None
@@ -268,20 +270,21 @@ def _threshold_lines(stage: str, info: dict | None, det, verdict) -> list[str]:
             lines.append(f"{_ok(gain, need_gain)} gain over the look-alike {gain:.2f}   (needs >= "
                          f"{need_gain:g}); look-alike rho {alt}")
         t = info.get("coherence_t")
-        need_t = g("sweep_min_coherence")
+        need_t = g("sweep.min_coherence")
         if t is not None and need_t is not None:
             lines.append(f"{_ok(t, need_t)} same amplitude in every column block: t = {t:.1f}"
                          f"   (needs >= {need_t:g})")
+        max_leak = g("fit.max_leak_rgb")
         if leak is not None:
-            lines.append(f"chroma leak {leak:.2f}   (colour path needs <= "
-                         f"{g('fit_max_leak_rgb', float('nan')):g})")
+            lines.append(f"chroma leak {leak:.2f}   (colour path " + (
+                "off)" if max_leak is None else f"needs <= {max_leak:g})"))
     elif stage == "period-sweep grid fit":
-        lines.append(f"grid rho {rho}  (needs >= {g('sweep_min_rho')}); look-alike rho {alt} "
-                     f"(margin needs >= {g('sweep_min_margin')}); coherence t "
-                     f"{info.get('coherence_t')} (needs >= {g('sweep_min_coherence')})")
+        lines.append(f"grid rho {rho}  (needs >= {g('sweep.min_rho')}); look-alike rho {alt} "
+                     f"(margin needs >= {g('sweep.min_margin')}); coherence t "
+                     f"{info.get('coherence_t')} (needs >= {g('sweep.min_coherence')})")
     elif stage == "pattern folding":
-        lines.append(f"folded rho {rho}  (needs >= {g('fold_min_rho')}); look-alike rho {alt}; "
-                     f"fold SNR {info.get('fold_snr')} (needs >= {g('fold_min_snr')})")
+        lines.append(f"folded rho {rho}  (needs >= {g('fold.min_rho')}); look-alike rho {alt}; "
+                     f"fold SNR {info.get('fold_snr')} (needs >= {g('fold.min_snr')})")
     extras = [f"{k} {info[k]}" for k in ("phase_mode", "slot_order", "switching_hz")
               if info.get(k) is not None]
     geom = [f"period {info['period_rows']:.1f} rows" if info.get("period_rows") else None,
@@ -422,7 +425,7 @@ def verdict_figure(source, verdict, config):
     if sigma_cpr_per_hz is None:
         sigma_cpr_per_hz = best.get("sigma_cpr_per_hz") or None
     if sigma_cpr_per_hz is None and verdict.profile == "paper":
-        sigma_cpr_per_hz = 1.0 / float(getattr(det, "nominal_row_rate_hz", 30000.0))
+        sigma_cpr_per_hz = 1.0 / float(det.paper.nominal_row_rate_hz)
     marks: list[tuple[str, float]] = []
     matched = {(c, float(f)) for c, fs in (best.get("matched_hz") or {}).items() for f in fs}
     if spec is None and best.get("spec"):

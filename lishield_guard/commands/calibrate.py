@@ -126,7 +126,7 @@ def _null_work(args) -> dict:
         return {}
     app = type(cfg)(detector=det, limits=cfg.limits, policies=cfg.policies)
     measured = null_model_far(rec["evidence"], app)
-    noise = null_model_far(rec["evidence"], app, q=det.peak_false_prob)
+    noise = null_model_far(rec["evidence"], app, q=det.tones.peak_false_prob)
     return {"measured": measured, "noise": noise}
 
 
@@ -447,7 +447,7 @@ def calibrate_command(
         pk_ms = {k: np.mean([r["paper_ms"][k] for r, _, _ in ok_c + ok_p]) for k in
                  ok_c[0][0]["paper_ms"]}
         blocks.append((s, pc, pp, hc, cc, np.array([dec_ms + pk_ms[
-            (int(st.as_dict["n_b"]), int(st.as_dict["max_peaks"]))] for st in s])))
+            (int(st.as_dict["paper.n_b"]), int(st.as_dict["paper.max_peaks"]))] for st in s])))
     pos_labels = [cal.group_labels(m) for _, m, _ in ok_p]
 
     # --- selection on the tuning part only
@@ -705,21 +705,21 @@ def _write_report(report: Path, summaries, best, cert, info: dict) -> dict:
                      key=lambda s: (s.far_upper <= info["target_far"], s.detection), default=None)
     panels = []
     if fixed_d:
-        panels += [("default", fixed_d, "tone_rel_tol", "peak_false_prob", "false_match_fraction",
+        tol, fp = "tones.rel_tol", "tones.peak_false_prob"
+        panels += [("default", fixed_d, tol, fp, "false_match_fraction",
                     "default: false candidate matches (>= min_tones) on clean"),
-                   ("default", fixed_d, "tone_rel_tol", "peak_false_prob", "far_upper",
-                    "default: FAR 95% upper bound"),
-                   ("default", fixed_d, "tone_rel_tol", "peak_false_prob", "detection",
-                    "default: detection rate"),
-                   ("default", fixed_d, "min_purity", "min_occupancy", "detection",
-                    "default: detection rate")]
+                   ("default", fixed_d, tol, fp, "far_upper", "default: FAR 95% upper bound"),
+                   ("default", fixed_d, tol, fp, "detection", "default: detection rate"),
+                   ("default", fixed_d, "tones.min_purity", "tones.min_occupancy",
+                    "detection", "default: detection rate")]
     if paper_best is not None:
         pd_ = paper_best.setting.as_dict
-        panels += [("paper", pd_, "ratio_tol", "n_b", "false_match_fraction",
+        tol = "paper.ratio_tol"
+        panels += [("paper", pd_, tol, "paper.n_b", "false_match_fraction",
                     "paper: fraction of false ratio matches (Fig. 21)"),
-                   ("paper", pd_, "ratio_tol", "gamma", "far", "paper: clean FAR (Fig. 22)"),
-                   ("paper", pd_, "ratio_tol", "gamma", "detection", "paper: detection"),
-                   ("paper", pd_, "ratio_tol", "max_peaks", "detection", "paper: detection")]
+                   ("paper", pd_, tol, "paper.gamma", "far", "paper: clean FAR (Fig. 22)"),
+                   ("paper", pd_, tol, "paper.gamma", "detection", "paper: detection"),
+                   ("paper", pd_, tol, "paper.max_peaks", "detection", "paper: detection")]
     if panels:
         n_cols = 4
         n_rows = math.ceil(len(panels) / n_cols)

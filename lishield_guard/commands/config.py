@@ -22,10 +22,9 @@ config_app = typer.Typer(
 
 
 def _flat(cfg) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for section in ("detector", "limits"):
-        for k, v in dataclasses.asdict(getattr(cfg, section)).items():
-            out[f"{section}.{k}"] = v
+    out: dict[str, object] = {f"detector.{k}": v for k, v in cfg.detector.values().items()}
+    for k, v in dataclasses.asdict(cfg.limits).items():
+        out[f"limits.{k}"] = v
     out["policies"] = tuple((p.id, tuple(s.name for s in p.specs)) for p in cfg.policies)
     return out
 
@@ -41,14 +40,14 @@ def overrides(cfg) -> list[str]:
     Returns
     -------
     list of str
-        ``"detector.fit_min_rho=0.85"``-style lines, sorted; policies as ``policies=[ids]``.
+        ``"detector.fit.min_rho=0.85"``-style lines, sorted; policies as ``policies=[ids]``.
     """
     from lishield_guard.config import default_config
 
     mine, base = _flat(cfg), _flat(default_config())
     lines = []
-    for k in sorted(mine):
-        if mine[k] != base.get(k):
+    for k in sorted(mine):  # a stage turned off shows as "detector.fold=None", once
+        if k not in base or mine[k] != base[k]:
             v = [p[0] for p in mine[k]] if k == "policies" else mine[k]
             lines.append(f"{k}={v!r}")
     return lines

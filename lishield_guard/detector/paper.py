@@ -21,15 +21,15 @@ def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
     of L rows is at k * nominal_row_rate_hz / L Hz.
     """
     n_rows, n_cols = plane.shape
-    lo_hz, hi_hz = config.band_hz
-    row_cuts = np.linspace(0, n_rows, config.n_block_rows + 1).round().astype(int)
-    col_cuts = np.linspace(0, n_cols, config.n_block_cols + 1).round().astype(int)
+    lo_hz, hi_hz = config.paper.band_hz
+    row_cuts = np.linspace(0, n_rows, config.paper.n_block_rows + 1).round().astype(int)
+    col_cuts = np.linspace(0, n_cols, config.paper.n_block_cols + 1).round().astype(int)
     found: set[float] = set()
     for r0, r1 in zip(row_cuts[:-1], row_cuts[1:], strict=True):
         length = int(r1 - r0)
         if length < 4:
             continue
-        freqs = np.fft.rfftfreq(length, d=1.0 / config.nominal_row_rate_hz)
+        freqs = np.fft.rfftfreq(length, d=1.0 / config.paper.nominal_row_rate_hz)
         in_band = (freqs >= lo_hz) & (freqs <= hi_hz)
         if not in_band.any():
             continue
@@ -46,7 +46,7 @@ def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
             cand = np.flatnonzero(peak & in_band & (mag > 0))
             if cand.size == 0:
                 continue
-            top = cand[np.argsort(mag[cand])[::-1][: config.max_peaks]]
+            top = cand[np.argsort(mag[cand])[::-1][: config.paper.max_peaks]]
             found.update(float(f) for f in freqs[top])
     return np.array(sorted(found), dtype=float)
 
@@ -66,7 +66,7 @@ def required_matches(spec: BarcodeSpec, config: DetectorConfig) -> int:
     """M_b = ceil(gamma * M_R + M_att), with M_R the number of tone pairs of the spec."""
     n = len(spec.all_freqs_hz)
     m_r = n * (n - 1) // 2
-    return int(math.ceil(config.gamma * m_r + config.m_att - 1e-9))
+    return int(math.ceil(config.paper.gamma * m_r + config.paper.m_att - 1e-9))
 
 
 def run_paper(planes: dict[str, np.ndarray], policies: tuple[Policy, ...],
@@ -82,7 +82,7 @@ def run_paper(planes: dict[str, np.ndarray], policies: tuple[Policy, ...],
             "margin": -math.inf}
     for policy in policies:
         for spec in policy.specs:
-            m_b = count_ratio_matches(freqs, spec.ratio_values(), config.ratio_tol)
+            m_b = count_ratio_matches(freqs, spec.ratio_values(), config.paper.ratio_tol)
             need = required_matches(spec, config)
             margin = m_b - need
             if margin > best["margin"]:
@@ -90,5 +90,5 @@ def run_paper(planes: dict[str, np.ndarray], policies: tuple[Policy, ...],
                         "matches": m_b, "required": need, "spec": spec.name, "margin": margin}
     evidence = {"frequencies_hz": [round(float(f), 3) for f in freqs],
                 "planes": list(planes), "best_spec": best["spec"],
-                "blocks": config.n_block_rows * config.n_block_cols}
+                "blocks": config.paper.n_block_rows * config.paper.n_block_cols}
     return {**best, "evidence": evidence}

@@ -121,8 +121,8 @@ def decode_for(source, config: AppConfig) -> Decoded:
     det = config.detector
     default = det.profile == "default"
     want_rgb = default and any(s.is_rgb for p in config.policies for s in p.specs)
-    return decode(source, limits=config.limits, fast=det.fast_decode, want_rgb=want_rgb,
-                  max_rows=det.max_decode_rows if default else 0)
+    return decode(source, limits=config.limits, fast=det.profiles.fast_decode,
+                  want_rgb=want_rgb, max_rows=det.profiles.max_decode_rows if default else 0)
 
 
 def detect_decoded(decoded: Decoded, config: AppConfig, *, _timer: _Timer | None = None
@@ -154,16 +154,16 @@ def _detect_paper(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict
             planes = {c: rgb[:, :, i] for i, c in enumerate("RGB")}
         else:
             planes = {"W": decoded.luma}
-    if min(decoded.luma.shape) < 2 * det.n_block_rows:
+    if min(decoded.luma.shape) < 2 * det.paper.n_block_rows:
         skipped.append("image smaller than the block grid")
     n_rows = decoded.luma.shape[0]
-    block_rows = np.diff(np.linspace(0, n_rows, det.n_block_rows + 1).round()).max()
+    block_rows = np.diff(np.linspace(0, n_rows, det.paper.n_block_rows + 1).round()).max()
     why = None
     if not any(p.specs for p in config.policies):
         why = "no policy configured: nothing to look for"
     elif block_rows < PAPER_MIN_BLOCK_ROWS:  # block_peaks_hz skips every block
         why = (f"image too small: {n_rows} rows give blocks of < {PAPER_MIN_BLOCK_ROWS} rows "
-               f"(n_block_rows={det.n_block_rows})")
+               f"(n_block_rows={det.paper.n_block_rows})")
     if why is not None:
         return Verdict(False, None, 0, 0, evidence={"reason": why}, skipped=tuple(skipped),
                        timings_ms=timer.ms, profile="paper", undetermined=why)
@@ -191,13 +191,14 @@ def analyse_plane(plane: np.ndarray, axis: int, config: AppConfig,
     analysed row: the input of every later stage."""
     det = config.detector
     lo, hi = _band_cpr(config, row_scale)
-    fine = block_row_profiles(plane, n_col_blocks=det.n_col_blocks, axis=axis,
+    fine = block_row_profiles(plane, n_col_blocks=det.profiles.n_col_blocks, axis=axis,
                               sub_blocks=FIT_SUB_BLOCKS)
-    profiles = merge_blocks(fine, plane.shape[1 - axis], det.n_col_blocks, FIT_SUB_BLOCKS)
+    profiles = merge_blocks(fine, plane.shape[1 - axis], det.profiles.n_col_blocks,
+                            FIT_SUB_BLOCKS)
     n_rows = profiles.shape[1]
     sigma = min(0.5 / lo if lo > 0 else n_rows, n_rows / 6.0)
     return analyse_profiles(profiles, full_scale=_full_scale(plane), band_cpr=(lo, hi),
-                            trend_sigma_rows=sigma, false_prob=det.peak_false_prob,
+                            trend_sigma_rows=sigma, false_prob=det.tones.peak_false_prob,
                             fine_profiles=fine)
 
 
@@ -245,8 +246,9 @@ def scaled_detector(det: DetectorConfig, row_scale: float) -> DetectorConfig:
     """Detector settings whose scale range accounts for decoding at 1/row_scale."""
     if row_scale == 1.0:
         return det
-    return det.replace(min_row_rate_hz=det.min_row_rate_hz / row_scale,
-                       max_row_rate_hz=det.max_row_rate_hz / row_scale)
+    pr = det.profiles
+    return det.replace(profiles=pr.replace(min_row_rate_hz=pr.min_row_rate_hz / row_scale,
+                                           max_row_rate_hz=pr.max_row_rate_hz / row_scale))
 
 
 def spec_planes(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis]
@@ -292,10 +294,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                                                                           det):
             m = replace(m, protected=False, reason=(
                 f"{m.reason}; not confirmed: no exact fit of {spec.name} explains the rows "
-                f"{det.tone_min_fit_gain:g}x better than a steady square wave"))
-        if not m.protected:
+                f"{det.tones.min_fit_gain:g}x better than a steady square wave"))
+        if not m.protected and det.fold is not None:
             m = _fold_stage(m, spec, _fold_info(spec, chans, periods(), det), det)
-        if not m.protected and det.period_sweep:
+        if not m.protected and det.sweep is not None:
             m = _sweep_stage(m, spec, sweeps(spec.name), det)
         out.append((pid, m))
         if m.protected:  # the verdict is certain: later specs are not searched
@@ -317,12 +319,12 @@ def _cleared_by_screen(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], scree
     else:
         why = (f"no column-coherent stripes (at most {best.frames} frame(s) of a "
                f"track above the p={best.false_prob:g} noise threshold, "
-               f"{det.screen_min_frames} needed"
-               + ("" if det.screen_partial_false_prob is None else
+               f"{det.screen.min_frames} needed"
+               + ("" if det.screen.partial_false_prob is None else
                   f"; in any half of the columns, {best.part_frames} at p="
-                  f"{det.screen_partial_false_prob:g}, "
-                  f"{det.screen_partial_min_frames} needed") + ")")
-    need = det.min_tones_rgb if spec.is_rgb else det.min_tones
+                  f"{det.screen.partial_false_prob:g}, "
+                  f"{det.screen.partial_min_frames} needed") + ")")
+    need = det.tones.min_tones_rgb if spec.is_rgb else det.tones.min_tones
     return SpecMatch(spec.name, 0.0, {}, {}, 0, need, 0.0, 0, False,
                      f"first stage: {why}; tone tracks and pattern search skipped",
                      stage="first stage")
@@ -385,15 +387,16 @@ def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
     the same candidate periods. ``grid_cpr``: the source's JPEG grid (`screen.jpeg_grid_cpr`);
     ``screens``: results of planes screened before (not screened again), filled in place."""
     screens = {} if screens is None else screens
+    sc = det.screen
     for name, pa in planes.items():
         if id(pa) not in screens:
             # halves of the columns are tested in luma only: a light covering part of the
             # frame shows there whatever it plays, and colour planes would triple the cost
             screens[id(pa)] = screen_plane(
-                pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames,
-                grid_cpr=grid_cpr, partial_false_prob=(det.screen_partial_false_prob
-                                                       if name == "L" else None),
-                partial_min_frames=det.screen_partial_min_frames)
+                pa, false_prob=None if sc is None else sc.false_prob,
+                min_frames=1 if sc is None else sc.min_frames, grid_cpr=grid_cpr,
+                partial_false_prob=sc.partial_false_prob if sc and name == "L" else None,
+                partial_min_frames=1 if sc is None else sc.partial_min_frames)
     return screens, [(pid, spec) for pid, spec in specs
                      if _screen_passes(spec_planes(spec, planes), screens)]
 
@@ -450,20 +453,21 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         blocks = pa.fit_blocks
         fits = sweep_match(blocks, targets, scale_range_cpr_per_hz=scale,
                            period_range_rows=ranges,
-                           n_starts=FIT_STARTS if det.model_fit else 0,
+                           n_starts=0 if det.fit is None else FIT_STARTS,
                            start_periods=_related_periods(periods or ()), weighted=True)
         # one steady look-alike per plane, at its best grid period: rows a steady square wave
         # already explains are not refined for any target
         top = max((st for sm in fits if sm is not None for st in sm.starts), default=None)
         steady = (steady_rho(blocks, top[1])
-                  if det.model_fit and top is not None and top[0] >= FIT_MIN_GRID_RHO else 0.0)
+                  if det.fit is not None and top is not None and top[0] >= FIT_MIN_GRID_RHO
+                  else 0.0)
         for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
             if sm is None:
                 continue
             info = {**sm.to_dict(), "channel": c, "emitter": variant_label(spec)}
             if steady >= LOOKALIKE_DOMINANT_RHO:
                 info["steady_rho"] = steady
-            elif det.model_fit:
+            elif det.fit is not None:
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
                 mf = refine(blocks, spec, c, starts, period_range_rows=rng,
                             scale_range_cpr_per_hz=scale,
@@ -597,7 +601,7 @@ def _analysed_axes(decoded: Decoded, config: AppConfig, timer: _Timer, skipped: 
     """Per configured axis (rows, then columns), analysed on first use: (axis name, planes
     holding luma ``"L"``, ``colour()`` adding the R, G, B planes when the image has colour and
     returning the planes). Axes too small to analyse are named in ``skipped`` instead."""
-    for axis in (0, 1) if config.detector.orientations == "both" else (0,):
+    for axis in (0, 1) if config.detector.profiles.orientations == "both" else (0,):
         name = AXIS_NAMES[axis]
         if (why := _too_small(decoded.luma.shape, axis)) is not None:
             skipped.append(f"{name}: {why}")
@@ -667,7 +671,7 @@ def _run_stages(axes, config: AppConfig, *, row_scale: float, fmt: str, orientat
             skipped.append(f"{name}: colour planes (luma verdict certain)")
         candidates += [(name, pid, m) for pid, m in found]
         if lazy and any(m.protected for _, m in found):
-            if name == AXIS_NAMES[0] and det.orientations == "both":
+            if name == AXIS_NAMES[0] and det.profiles.orientations == "both":
                 skipped.append("columns: verdict certain from rows")
             break
     return _verdict(candidates, config, skipped, timer.ms, orientation, fmt)
@@ -682,7 +686,7 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
             why = (f"image too small: fewer than {MIN_ROWS} lines of at least {MIN_ACROSS} "
                    f"pixels on every analysed axis ("
                    + "; ".join(skipped) + ")" if skipped else "nothing analysable")
-        return Verdict(False, None, 0, config.detector.min_tones,
+        return Verdict(False, None, 0, config.detector.tones.min_tones,
                        evidence={"reason": why, "candidates": []},
                        skipped=tuple(skipped), timings_ms=timings, profile="default",
                        undetermined=why)
@@ -707,7 +711,7 @@ def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
-    if decoded.orientation in (5, 6, 7, 8) and config.detector.orientations == "both":
+    if decoded.orientation in (5, 6, 7, 8) and config.detector.profiles.orientations == "both":
         skipped.append(f"EXIF orientation {decoded.orientation}: stored rows are sensor rows, "
                        f"analysed first")
     return _run_stages(_analysed_axes(decoded, config, timer, skipped), config,

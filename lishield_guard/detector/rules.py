@@ -18,42 +18,58 @@ __all__ = ["fit_passes", "fit_rule", "fold_passes", "fold_rule", "grid_passes", 
            "sweep_passes", "tone_check_on", "tone_fit_confirms", "tone_rule"]
 
 
+def _off(value) -> float | np.ndarray:
+    """False everywhere ``value`` is: a rule of a stage that is off passes nothing."""
+    return np.zeros(np.shape(value), dtype=bool) if np.ndim(value) else False
+
+
 def grid_rule(rho, rho_lookalike, coherence_t, det: DetectorConfig):
-    """Period-sweep grid fit: rho >= ``sweep_min_rho``, rho beats the stationary look-alike
-    by ``sweep_min_margin`` and the column blocks agree (coherence t >= ``sweep_min_coherence``).
+    """Period-sweep grid fit: rho >= ``sweep.min_rho``, rho beats the stationary look-alike
+    by ``sweep.min_margin`` and the column blocks agree (coherence t >= ``sweep.min_coherence``);
+    never with the sweep off.
     """
-    return ((rho >= det.sweep_min_rho) & (rho - rho_lookalike >= det.sweep_min_margin)
-            & (coherence_t >= det.sweep_min_coherence))
+    if det.sweep is None:
+        return _off(rho)
+    return ((rho >= det.sweep.min_rho) & (rho - rho_lookalike >= det.sweep.min_margin)
+            & (coherence_t >= det.sweep.min_coherence))
 
 
 def fit_rule(rho, gain, coherence_t, n_periods, chroma_leak, det: DetectorConfig):
-    """Exact-model fit, with the exact fit enabled and coherence t >= ``sweep_min_coherence``:
-    rho and gain reach ``fit_min_rho`` and ``fit_min_gain``; or the frame holds at least
-    `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach the ``_periodic``
-    thresholds; or (an RGB channel whose colour was measured: ``chroma_leak`` finite, inf
-    when not measured) the leak is at most ``fit_max_leak_rgb`` and rho and gain reach the
-    ``_rgb`` thresholds."""
-    return (det.model_fit & (coherence_t >= det.sweep_min_coherence)
-            & (((rho >= det.fit_min_rho) & (gain >= det.fit_min_gain))
-               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit_min_rho_periodic)
-                  & (gain >= det.fit_min_gain_periodic))
-               | (np.isfinite(chroma_leak) & (chroma_leak <= det.fit_max_leak_rgb)
-                  & (rho >= det.fit_min_rho_rgb) & (gain >= det.fit_min_gain_rgb))))
+    """Exact-model fit, with the sweep and the fit on and coherence t >=
+    ``sweep.min_coherence``: rho and gain reach ``fit.min_rho`` and ``fit.min_gain``; or the
+    frame holds at least `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach
+    the ``_periodic`` thresholds; or (an RGB channel whose colour was measured:
+    ``chroma_leak`` finite, inf when not measured) the leak is at most ``fit.max_leak_rgb``
+    and rho and gain reach the ``_rgb`` thresholds. An optional path set to None is off."""
+    if det.fit is None or det.sweep is None:
+        return _off(rho)
+    gain_periodic = math.inf if det.fit.min_gain_periodic is None else det.fit.min_gain_periodic
+    max_leak = -math.inf if det.fit.max_leak_rgb is None else det.fit.max_leak_rgb
+    return ((coherence_t >= det.sweep.min_coherence)
+            & (((rho >= det.fit.min_rho) & (gain >= det.fit.min_gain))
+               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit.min_rho_periodic)
+                  & (gain >= gain_periodic))
+               | (np.isfinite(chroma_leak) & (chroma_leak <= max_leak)
+                  & (rho >= det.fit.min_rho_rgb) & (gain >= det.fit.min_gain_rgb))))
 
 
 def tone_rule(rho, gain, coherence_t, det: DetectorConfig):
     """Exact-model fit confirming tone tracks: rho >= `config.FIT_RHO_FLOOR`, coherence t >=
-    ``sweep_min_coherence`` and gain >= ``tone_min_fit_gain`` (the barcode explains the rows
-    better than the best steady square wave)."""
-    return ((rho >= FIT_RHO_FLOOR) & (coherence_t >= det.sweep_min_coherence)
-            & (gain >= det.tone_min_fit_gain))
+    ``sweep.min_coherence`` and gain >= ``tones.min_fit_gain`` (the barcode explains the rows
+    better than the best steady square wave); never when `tone_check_on` is False."""
+    if not tone_check_on(det):
+        return _off(rho)
+    return ((rho >= FIT_RHO_FLOOR) & (coherence_t >= det.sweep.min_coherence)
+            & (gain >= det.tones.min_fit_gain))
 
 
 def fold_rule(rho, rho_lookalike, fold_snr, det: DetectorConfig):
-    """Fold fit: rho >= ``fold_min_rho``, SNR >= ``fold_min_snr`` and rho beats the stationary
-    look-alike by ``fold_min_margin``."""
-    return ((rho >= det.fold_min_rho) & (fold_snr >= det.fold_min_snr)
-            & (rho - rho_lookalike >= det.fold_min_margin))
+    """Fold fit: rho >= ``fold.min_rho``, SNR >= ``fold.min_snr`` and rho beats the stationary
+    look-alike by ``fold.min_margin``; never with folding off."""
+    if det.fold is None:
+        return _off(rho)
+    return ((rho >= det.fold.min_rho) & (fold_snr >= det.fold.min_snr)
+            & (rho - rho_lookalike >= det.fold.min_margin))
 
 
 def grid_passes(info: dict, det: DetectorConfig) -> bool:
@@ -83,9 +99,9 @@ def fold_passes(info: dict, det: DetectorConfig) -> bool:
 
 
 def tone_check_on(det: DetectorConfig) -> bool:
-    """Whether tone tracks need an exact fit's confirmation (`tone_fit_confirms`): a finite
-    ``tone_min_fit_gain`` with the period sweep and the exact fit enabled."""
-    return det.tone_min_fit_gain > -math.inf and det.period_sweep and det.model_fit
+    """Whether tone tracks need an exact fit's confirmation (`tone_fit_confirms`): a
+    ``tones.min_fit_gain`` (not None) with the period sweep and the exact fit on."""
+    return det.tones.min_fit_gain is not None and det.sweep is not None and det.fit is not None
 
 
 def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:

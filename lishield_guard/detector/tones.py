@@ -94,7 +94,8 @@ class SpecMatch:
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:
     """Physically possible sigma: [1 / max_row_rate_hz, max_downscale / min_row_rate_hz]."""
-    return 1.0 / config.max_row_rate_hz, config.max_downscale / config.min_row_rate_hz
+    pr = config.profiles
+    return 1.0 / pr.max_row_rate_hz, pr.max_downscale / pr.min_row_rate_hz
 
 
 def _histograms(analysis: PlaneAnalysis, grid_lo: float, n_bins: int) -> np.ndarray:
@@ -120,7 +121,7 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
     that carries it (luma for ``W``; a colour plane, or luma for a gray image).
     """
     s_lo, s_hi = scale_range_cpr_per_hz(config)
-    tol = math.log1p(config.tone_rel_tol)
+    tol = math.log1p(config.tones.rel_tol)
     tones = {c: np.log(np.array(fs)) for c, fs in spec.channels}
     all_lo = min(t.min() for t in tones.values())
     all_hi = max(t.max() for t in tones.values())
@@ -129,7 +130,7 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
     n_bins = int(math.ceil((grid_hi - grid_lo) / LOG_BIN))
     shifts = np.arange(math.log(s_lo), math.log(s_hi) + LOG_BIN, LOG_BIN)
     rgb = spec.is_rgb
-    need = config.min_tones_rgb if rgb else config.min_tones
+    need = config.tones.min_tones_rgb if rgb else config.tones.min_tones
 
     total_occ = np.zeros(shifts.size)
     n_hit = np.zeros(shifts.size, dtype=int)
@@ -161,8 +162,8 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
             fits &= windows[:, None] * spacing_cpr[None, :] >= RESOLVE_CYCLES
         occ[~fits] = 0.0
         n_frames = np.array([t.freq_cpr.size for t in analysis.tracks], dtype=float)
-        floor = np.maximum(config.min_occupancy, MIN_FRAMES / n_frames)[:, None, None]
-        hit_all = (occ >= floor - 1e-12) & (occ <= config.max_occupancy)
+        floor = np.maximum(config.tones.min_occupancy, MIN_FRAMES / n_frames)[:, None, None]
+        hit_all = (occ >= floor - 1e-12) & (occ <= config.tones.max_occupancy)
         # per shift, the window length that explains the most: most tones, then occupancy
         track_rank = hit_all.sum(axis=2) * 10.0 + (occ * hit_all).sum(axis=2)
         track = track_rank.argmax(axis=0)
@@ -187,7 +188,7 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
         matched[c] = [float(f) for f, h in zip(freqs, hit[best], strict=True) if h]
         if hit[best].sum() >= 1:
             labels_by_channel.append(_labels(planes[c], int(band[best]), sigma, freqs,
-                                             hit[best], config.tone_rel_tol))
+                                             hit[best], config.tones.rel_tol))
     switches = max((_switches(lab) for lab in labels_by_channel), default=0)
     n_matched = int(n_hit[best])
     p = float(min(purity[best], 1.0))
@@ -195,7 +196,7 @@ def match_spec(spec: BarcodeSpec, planes: dict[str, PlaneAnalysis],
         reason = f"{n_matched} tone(s) found, {need} needed"
     elif rgb and ch_hit[best] < 2:
         reason = "RGB barcode tones found in only one colour channel"
-    elif p < config.min_purity:
+    elif p < config.tones.min_purity:
         reason = f"matched tones explain {p:.2f} of the significant stripes < min_purity"
     elif switches < 1:
         reason = "tones never alternate down the rows (no symbol timing)"

@@ -19,7 +19,7 @@ degrees of freedom), so the ratio peak / estimated P is F(2, 2m)-distributed wit
 m = n_blocks - 1: P(ratio > x) = (1 + x/m)^(-m). The strongest of ``n_bins`` independent bins is
 taken, so the per-bin probability is p / n_bins and the threshold is
 x = m ((p / n_bins)^(-1/m) - 1), for a per-frame false-pass probability p
-(DetectorConfig.peak_false_prob).
+(`config.ToneConfig.peak_false_prob`).
 """
 
 from __future__ import annotations

@@ -18,8 +18,7 @@ router = APIRouter(prefix="/v1", tags=["config"], dependencies=[Depends(require_
 async def policies(svc: ServiceState = Depends(get_service)) -> PoliciesInfo:
     """Policies the service screens for, with detector thresholds and input limits."""
     cfg = svc.config
-    detector = dataclasses.asdict(cfg.detector)
-    detector["band_hz"] = list(detector["band_hz"])
+    detector = dataclasses.asdict(cfg.detector)  # one table per stage, None: stage off
     return PoliciesInfo(config_source=cfg.source, detector=detector,
                         limits=dataclasses.asdict(cfg.limits),
                         policies=[PolicyInfo(**p.to_dict()) for p in cfg.policies])

@@ -65,9 +65,9 @@ def test_cli_rejects_unknown_setting(tiny_dataset, tmp_path):
 def test_settings_apply_changes():
     by = {s.name: s for s in bench.make_settings(bench.SETTINGS, load_config())}
     assert by["paper"].config.detector.profile == "paper"
-    assert by["default-ref"].config.detector.fast_decode is False
-    assert by["default"].config.detector.fast_decode is True
-    assert by["fast"].config.detector.orientations == "rows"
+    assert by["default-ref"].config.detector.profiles.fast_decode is False
+    assert by["default"].config.detector.profiles.fast_decode is True
+    assert by["fast"].config.detector.profiles.orientations == "rows"
     assert by["default"].config.policies  # the shipped policies are kept
 
 

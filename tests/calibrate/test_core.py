@@ -56,15 +56,15 @@ def test_candidate_table_agrees_with_decide(records):
                                               sweeps=[r["sweeps"] for r in recs])
     assert len(settings) == 32
     subset = _orthogonal_subset(settings, {
-        "peak_false_prob": (1e-2, 1e-4), "min_purity": (0.3, 0.6),
-        "sweep_min_rho": (0.6, 0.9), "fit_min_gain": (1.0, math.inf),
-        "fit_min_gain_periodic": (1.0, math.inf)})
+        "tones.peak_false_prob": (1e-2, 1e-4), "tones.min_purity": (0.3, 0.6),
+        "sweep.min_rho": (0.6, 0.9), "fit.min_gain": (1.0, math.inf),
+        "fit.min_gain_periodic": (1.0, math.inf)})
     assert len(subset) == 8
     n_pos = 0
     for i in subset:
         det = settings[i].apply(cfg.detector)
         app = AppConfig(detector=det, limits=cfg.limits, policies=cfg.policies)
-        want = [decide(r["evidence"].with_false_prob(det.peak_false_prob), app).protected
+        want = [decide(r["evidence"].with_false_prob(det.tones.peak_false_prob), app).protected
                 for r in recs]
         assert prot[i].tolist() == want, settings[i].label()
         n_pos += sum(want)
@@ -75,32 +75,32 @@ def _literal_sweep_row(row, det) -> bool:
     """`SWEEP_COLUMNS` row -> protected, the grid and exact-fit rules written out (not the
     `rules.grid_rule` / `fit_rule` both calibration and detection call)."""
     rho, alt, t, f_rho, f_gain, f_t, leak, _cand, f_periods = (float(x) for x in row)
-    grid = (rho >= det.sweep_min_rho and rho - alt >= det.sweep_min_margin
-            and t >= det.sweep_min_coherence)
-    fit = det.model_fit and f_t >= det.sweep_min_coherence and (
-        (f_rho >= det.fit_min_rho and f_gain >= det.fit_min_gain)
-        or (f_periods >= 2.0 and f_rho >= det.fit_min_rho_periodic
-            and f_gain >= det.fit_min_gain_periodic)
-        or (math.isfinite(leak) and leak <= det.fit_max_leak_rgb
-            and f_rho >= det.fit_min_rho_rgb and f_gain >= det.fit_min_gain_rgb))
+    grid = (rho >= det.sweep.min_rho and rho - alt >= det.sweep.min_margin
+            and t >= det.sweep.min_coherence)
+    fit = det.fit is not None and f_t >= det.sweep.min_coherence and (
+        (f_rho >= det.fit.min_rho and f_gain >= det.fit.min_gain)
+        or (f_periods >= 2.0 and f_rho >= det.fit.min_rho_periodic
+            and f_gain >= det.fit.min_gain_periodic)
+        or (math.isfinite(leak) and leak <= det.fit.max_leak_rgb
+            and f_rho >= det.fit.min_rho_rgb and f_gain >= det.fit.min_gain_rgb))
     return grid or fit
 
 
 def _literal_fold_row(row, det) -> bool:
     rho, alt, snr = (float(x) for x in row)
-    return (rho >= det.fold_min_rho and snr >= det.fold_min_snr
-            and rho - alt >= det.fold_min_margin)
+    return (rho >= det.fold.min_rho and snr >= det.fold.min_snr
+            and rho - alt >= det.fold.min_margin)
 
 
 # Settings from lax to the shipped ones: at the lax ones real fits pass on rho and fail only
 # on the look-alike term, so the tables below exercise that term.
 _TABLE_SETTINGS = [
     {},
-    {"sweep_min_rho": 0.6, "sweep_min_margin": 0.0, "sweep_min_coherence": 3.0},
-    {"sweep_min_rho": 0.6, "sweep_min_margin": 0.0, "fit_min_rho": 0.8, "fit_min_gain": 0.5,
-     "fit_min_rho_periodic": 0.8, "fit_min_gain_periodic": 0.5, "fit_min_rho_rgb": 0.8,
-     "fit_min_gain_rgb": 0.5, "fit_max_leak_rgb": 1.0, "sweep_min_coherence": 3.0},
-    {"fold_min_rho": 0.6, "fold_min_snr": 1.0, "fold_min_margin": 0.0},
+    {"sweep.min_rho": 0.6, "sweep.min_margin": 0.0, "sweep.min_coherence": 3.0},
+    {"sweep.min_rho": 0.6, "sweep.min_margin": 0.0, "fit.min_rho": 0.8, "fit.min_gain": 0.5,
+     "fit.min_rho_periodic": 0.8, "fit.min_gain_periodic": 0.5, "fit.min_rho_rgb": 0.8,
+     "fit.min_gain_rgb": 0.5, "fit.max_leak_rgb": 1.0, "sweep.min_coherence": 3.0},
+    {"fold.min_rho": 0.6, "fold.min_snr": 1.0, "fold.min_margin": 0.0},
 ]
 
 
@@ -113,14 +113,15 @@ def test_cached_fit_tables_judged_as_the_rules_say(records):
     cfg, recs = records
     n_pass = n_lookalike_only = 0
     for overrides in _TABLE_SETTINGS:
-        det = cfg.detector.replace(**overrides)
+        det = cfg.detector.with_values(overrides)
         for r in recs:
             want = [_literal_sweep_row(row, det) for row in r["sweeps"]]
             assert bool(cal.sweep_protected([r["sweeps"]], det)[0]) is any(want)
             folds = [_literal_fold_row(row, det) for row in r["folds"]]
             assert bool(cal.fold_protected([r["folds"]], det)[0]) is any(folds)
             n_pass += sum(want) + sum(folds)
-            no_margin = det.replace(sweep_min_margin=-1.0, fold_min_margin=-1.0)  # rho - alt >= -1
+            no_margin = det.with_values({"sweep.min_margin": -1.0,  # rho - alt >= -1
+                                         "fold.min_margin": -1.0})
             n_lookalike_only += sum(
                 _literal_sweep_row(row, no_margin) and not _literal_sweep_row(row, det)
                 for row in r["sweeps"]) + sum(
@@ -134,7 +135,8 @@ def test_paper_peaks_match_run_paper(records, tiny_sets):
     from lishield_guard import detect
 
     cfg, recs = records
-    det = cfg.detector.replace(profile="paper", n_block_rows=4, n_block_cols=4, max_peaks=2)
+    det = cfg.detector.with_values({"profile": "paper", "paper.n_block_rows": 4,
+                                    "paper.n_block_cols": 4, "paper.max_peaks": 2})
     f = sorted(tiny_sets["pos"].glob("*.jpg"))[0]
     v = detect(f, det)
     assert np.allclose(recs[0]["paper_peaks"][(4, 2)], v.evidence["frequencies_hz"], atol=1e-2)
@@ -146,7 +148,8 @@ def test_null_model_monotone_and_zero(records):
     vals = [cal.null_model_far(ev, cfg, q=q)["far"] for q in (0.0, 1e-3, 1e-2, 1e-1)]
     assert vals[0] == 0.0
     assert all(a <= b for a, b in itertools.pairwise(vals))
-    loose = AppConfig(detector=cfg.detector.replace(min_purity=0.0, tone_rel_tol=0.08),
+    loose = AppConfig(detector=cfg.detector.with_values({"tones.min_purity": 0.0,
+                                                         "tones.rel_tol": 0.08}),
                       limits=cfg.limits, policies=cfg.policies)
     assert cal.null_model_far(ev, loose, q=0.05)["far"] >= cal.null_model_far(ev, cfg,
                                                                              q=0.05)["far"]

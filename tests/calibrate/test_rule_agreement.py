@@ -23,7 +23,15 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from lishield_guard.calibrate import fold_protected, sweep_protected, sweep_row, tone_confirmed
-from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, DetectorConfig
+from lishield_guard.config import (
+    FIT_RHO_FLOOR,
+    PERIODIC_MIN_PERIODS,
+    DetectorConfig,
+    FitConfig,
+    FoldConfig,
+    SweepConfig,
+    ToneConfig,
+)
 from lishield_guard.detector.rules import fold_passes, sweep_passes, tone_fit_confirms
 
 # The two constants the rules use, restated: the literal rules below use these numbers.
@@ -39,23 +47,26 @@ def test_rule_constants_are_the_restated_ones():
 # ------------------------------------------------------------------ the rules, written out
 
 def _grid(s: dict, det: DetectorConfig) -> bool:
-    return (s["rho"] >= det.sweep_min_rho
-            and s["rho"] - s["rho_lookalike"] >= det.sweep_min_margin
-            and s["coherence_t"] >= det.sweep_min_coherence)
+    return (det.sweep is not None and s["rho"] >= det.sweep.min_rho
+            and s["rho"] - s["rho_lookalike"] >= det.sweep.min_margin
+            and s["coherence_t"] >= det.sweep.min_coherence)
 
 
 def _fit(fit: dict | None, det: DetectorConfig) -> bool:
-    if fit is None or not det.model_fit or fit["coherence_t"] < det.sweep_min_coherence:
+    if (fit is None or det.fit is None or det.sweep is None
+            or fit["coherence_t"] < det.sweep.min_coherence):
         return False
     rho, gain, leak = fit["rho"], fit["gain"], fit["chroma_leak"]
-    if rho >= det.fit_min_rho and gain >= det.fit_min_gain:
+    if rho >= det.fit.min_rho and gain >= det.fit.min_gain:
         return True
-    if (fit["n_periods"] >= PERIODIC_PERIODS and rho >= det.fit_min_rho_periodic
-            and gain >= det.fit_min_gain_periodic):
+    if (fit["n_periods"] >= PERIODIC_PERIODS and det.fit.min_gain_periodic is not None
+            and rho >= det.fit.min_rho_periodic and gain >= det.fit.min_gain_periodic):
         return True
-    # an unmeasured leak (None: a mono plane) never takes the colour-verified path
-    return (leak is not None and leak <= det.fit_max_leak_rgb and rho >= det.fit_min_rho_rgb
-            and gain >= det.fit_min_gain_rgb)
+    # an unmeasured leak (None: a mono plane) never takes the colour-verified path, nor any
+    # fit when the path is off (max_leak_rgb None)
+    return (leak is not None and det.fit.max_leak_rgb is not None
+            and leak <= det.fit.max_leak_rgb and rho >= det.fit.min_rho_rgb
+            and gain >= det.fit.min_gain_rgb)
 
 
 def _sweep(s: dict, det: DetectorConfig) -> bool:
@@ -64,13 +75,13 @@ def _sweep(s: dict, det: DetectorConfig) -> bool:
 
 def _tone(fit: dict | None, det: DetectorConfig) -> bool:
     return (fit is not None and fit["rho"] >= TONE_RHO_FLOOR
-            and fit["coherence_t"] >= det.sweep_min_coherence
-            and fit["gain"] >= det.tone_min_fit_gain)
+            and fit["coherence_t"] >= det.sweep.min_coherence
+            and fit["gain"] >= det.tones.min_fit_gain)
 
 
 def _fold(rho: float, rho_lookalike: float, snr: float, det: DetectorConfig) -> bool:
-    return (rho >= det.fold_min_rho and snr >= det.fold_min_snr
-            and rho - rho_lookalike >= det.fold_min_margin)
+    return (rho >= det.fold.min_rho and snr >= det.fold.min_snr
+            and rho - rho_lookalike >= det.fold.min_margin)
 
 
 # ------------------------------------------------------------- hand-computed verdicts
@@ -78,10 +89,11 @@ def _fold(rho: float, rho_lookalike: float, snr: float, det: DetectorConfig) -> 
 # Thresholds are dyadic fractions, so each tie below is exact in binary floating point
 # (0.875 - 0.625 == 0.25 exactly; 0.9 - 0.6 is not 0.3).
 DET = DetectorConfig(
-    sweep_min_rho=0.75, sweep_min_margin=0.25, sweep_min_coherence=4.0, model_fit=True,
-    fit_min_rho=0.875, fit_min_gain=8.0, fit_min_rho_periodic=0.9375, fit_min_gain_periodic=1.0,
-    fit_min_rho_rgb=0.8125, fit_min_gain_rgb=2.0, fit_max_leak_rgb=0.25,
-    tone_min_fit_gain=0.5, fold_min_rho=0.875, fold_min_snr=32.0, fold_min_margin=0.0625)
+    sweep=SweepConfig(min_rho=0.75, min_margin=0.25, min_coherence=4.0),
+    fit=FitConfig(min_rho=0.875, min_gain=8.0, min_rho_periodic=0.9375, min_gain_periodic=1.0,
+                  min_rho_rgb=0.8125, min_gain_rgb=2.0, max_leak_rgb=0.25),
+    tones=ToneConfig(min_fit_gain=0.5),
+    fold=FoldConfig(min_rho=0.875, min_snr=32.0, min_margin=0.0625))
 
 
 def _ids(cases) -> list[str]:
@@ -140,8 +152,9 @@ def test_sweep_rule_fixed_verdicts(info, expected):
 
 
 def test_sweep_rule_without_exact_fit():
-    """model_fit=False: no exact-model fit decides, however good (grid fits still do)."""
-    det = DET.replace(model_fit=False)
+    """The fit off (``fit = false``): no exact-model fit decides, however good (grid fits
+    still do)."""
+    det = DET.replace(fit=None)
     fit_only = _info(fit=_f(0.96875, 100.0, 40.0, 4.0, 0.0))
     assert not sweep_passes(fit_only, det)
     assert not sweep_protected([np.array([sweep_row(fit_only, 0)])], det)[0]
@@ -208,23 +221,23 @@ FIT = st.none() | st.fixed_dictionaries({
     "chroma_leak": LEAK})
 SWEEP = st.fixed_dictionaries({"rho": RHO, "rho_lookalike": RHO, "coherence_t": COHERENCE,
                                "fit": FIT})
-DETS = st.builds(
-    DetectorConfig,
-    model_fit=st.booleans(),
-    sweep_min_rho=RHO, sweep_min_margin=st.sampled_from([0.0, 0.05, 0.2]),
-    sweep_min_coherence=st.sampled_from([0.0, 3.0]),
-    fit_min_rho=FIT_MIN_RHO, fit_min_gain=GAIN,
-    fit_min_rho_periodic=FIT_MIN_RHO, fit_min_gain_periodic=GAIN,
-    fit_min_rho_rgb=FIT_MIN_RHO, fit_min_gain_rgb=GAIN,
+SWEEPS = st.builds(SweepConfig, min_rho=RHO, min_margin=st.sampled_from([0.0, 0.05, 0.2]),
+                   min_coherence=st.sampled_from([0.0, 3.0]))
+FITS = st.none() | st.builds(
+    FitConfig, min_rho=FIT_MIN_RHO, min_gain=GAIN,
+    min_rho_periodic=FIT_MIN_RHO, min_gain_periodic=st.none() | GAIN,
+    min_rho_rgb=FIT_MIN_RHO, min_gain_rgb=GAIN,
     # inf included: an unmeasured leak must not pass even with no leak limit
-    fit_max_leak_rgb=st.sampled_from([0.0, 0.3, math.inf]),
-    tone_min_fit_gain=st.sampled_from([-math.inf, 0.0, 0.5, 3.0]),
+    max_leak_rgb=st.sampled_from([None, 0.0, 0.3, math.inf]))
+DETS = st.builds(
+    DetectorConfig, sweep=SWEEPS, fit=FITS,
+    tones=st.builds(ToneConfig, min_fit_gain=st.sampled_from([None, 0.0, 0.5, 3.0])),
 )
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
 @given(sweeps=st.lists(SWEEP, min_size=1, max_size=3), det=DETS)
-@example(sweeps=[_info(0.9, 0.8, 10.0)], det=DetectorConfig(sweep_min_margin=0.2))
+@example(sweeps=[_info(0.9, 0.8, 10.0)], det=DetectorConfig(sweep=SweepConfig(min_margin=0.2)))
 def test_sweep_forms_equal_the_literal_rule(sweeps, det):
     """Protected exactly when the literal rule passes one of the fits, in both forms; tone
     tracks confirmed exactly when the literal tone rule passes one."""
@@ -232,8 +245,8 @@ def test_sweep_forms_equal_the_literal_rule(sweeps, det):
     assert any(sweep_passes(s, det) for s in sweeps) is expected
     table = np.array([sweep_row(s, candidate=0) for s in sweeps], dtype=float)
     assert bool(sweep_protected([table], det)[0]) is expected
-    det_on = det.replace(model_fit=True, period_sweep=True)
-    if det_on.tone_min_fit_gain > -math.inf:
+    det_on = det.replace(fit=det.fit or FitConfig())
+    if det_on.tones.min_fit_gain is not None:
         confirmed = any(_tone(s["fit"], det_on) for s in sweeps)
         assert tone_fit_confirms(sweeps, det_on) is confirmed
         assert bool(tone_confirmed([table], 1, det_on)[0, 0]) is confirmed
@@ -245,7 +258,7 @@ def test_sweep_forms_equal_the_literal_rule(sweeps, det):
        min_rho=RHO, min_snr=st.sampled_from([0.0, 6.0]), margin=st.sampled_from([0.0, 0.1]))
 def test_fold_forms_equal_the_literal_rule(folds, min_rho, min_snr, margin):
     """`fold_passes` and `fold_protected` agree with the literal fold rule on every fit."""
-    det = DetectorConfig(fold_min_rho=min_rho, fold_min_snr=min_snr, fold_min_margin=margin)
+    det = DetectorConfig(fold=FoldConfig(min_rho=min_rho, min_snr=min_snr, min_margin=margin))
     expected = any(_fold(r, a, s, det) for r, a, s in folds)
     assert any(fold_passes({"rho": r, "rho_lookalike": a, "fold_snr": s}, det)
                for r, a, s in folds) is expected
@@ -255,8 +268,9 @@ def test_fold_forms_equal_the_literal_rule(folds, min_rho, min_snr, margin):
 def test_unmeasured_leak_never_takes_the_rgb_path():
     """The corner where the two copies once differed: a fit with no measured chroma leak
     (a mono plane) fails the RGB path even when the leak limit is off."""
-    det = DetectorConfig(fit_min_rho=1.0, fit_min_gain=math.inf, fit_min_rho_rgb=0.8,
-                         fit_min_gain_rgb=3.0, fit_max_leak_rgb=math.inf, sweep_min_rho=1.0)
+    det = DetectorConfig(fit=FitConfig(min_rho=1.0, min_gain=math.inf, min_rho_rgb=0.8,
+                                       min_gain_rgb=3.0, max_leak_rgb=math.inf),
+                         sweep=SweepConfig(min_rho=1.0))
     fit = {"rho": 0.9, "gain": 5.0, "coherence_t": 10.0, "n_periods": 1.0, "chroma_leak": None}
     info = {"rho": 0.0, "rho_lookalike": 0.0, "coherence_t": 10.0, "fit": fit}
     assert not sweep_passes(info, det)

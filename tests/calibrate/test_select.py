@@ -10,7 +10,7 @@ from lishield_guard.config import default_config
 
 
 def _summaries(fa: list[int], det: list[int], n_clean: int = 3000, n_pos: int = 100):
-    settings = [Setting("default", (("peak_false_prob", 10.0 ** -(i + 1)),))
+    settings = [Setting("default", (("tones.peak_false_prob", 10.0 ** -(i + 1)),))
                 for i in range(len(fa))]
     clean = np.zeros((len(fa), n_clean), bool)
     pos = np.zeros((len(fa), n_pos), bool)
@@ -54,7 +54,7 @@ def test_default_scores_gates():
     t[0, 0, 0, :4] = (2, 0.5, 3, 1)  # mono: 2 tones, purity .5, switching
     t[1, 0, 1, :4] = (3, 0.9, 2, 1)  # rgb: 3 tones but only one channel hit
     settings, prot, hits, cands = cal.default_scores(t, grid)
-    got = {(s.as_dict["min_purity"], s.as_dict["min_tones"]): p.tolist()
+    got = {(s.as_dict["tones.min_purity"], s.as_dict["tones.min_tones"]): p.tolist()
            for s, p in zip(settings, prot, strict=True)}
     assert got[(0.3, 2)] == [True, False]
     assert got[(0.7, 2)] == [False, False]

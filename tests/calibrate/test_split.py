@@ -129,7 +129,7 @@ def test_claim_refuses_what_the_part_cannot_show():
 def test_tuning_claim_is_not_the_certified_one():
     """Selection on the tuning part claims the target (0/300 -> bound 0.00994 <= 0.01); the
     certification part shows the chosen setting's false alarms (4/300), so it is not met."""
-    settings = [Setting("default", (("peak_false_prob", p),)) for p in (1e-3, 1e-5)]
+    settings = [Setting("default", (("tones.peak_false_prob", p),)) for p in (1e-3, 1e-5)]
     clean = np.zeros((2, 600), bool)
     clean[0, 300:304] = True  # the sensitive setting fires only on held-out images
     clean[1, 10] = True

@@ -158,25 +158,28 @@ def test_colour_verified_path_of_fit_passes():
     from lishield_guard.config import DetectorConfig
     from lishield_guard.detector.rules import fit_passes
 
-    det = DetectorConfig(fit_min_rho=0.95, fit_min_gain=8.0, fit_min_rho_rgb=0.85,
-                         fit_min_gain_rgb=1.0, fit_max_leak_rgb=0.3, sweep_min_coherence=3.0)
+    det = DetectorConfig().with_values({
+        "fit.min_rho": 0.95, "fit.min_gain": 8.0, "fit.min_rho_rgb": 0.85,
+        "fit.min_gain_rgb": 1.0, "fit.max_leak_rgb": 0.3, "sweep.min_coherence": 3.0})
     fit = {"rho": 0.88, "gain": 2.0, "coherence_t": 10.0, "chroma_leak": 0.1, "n_periods": 1.5}
     assert fit_passes(fit, det)
     assert not fit_passes({**fit, "chroma_leak": 0.5}, det)  # colour says grey scene
     assert not fit_passes({**fit, "chroma_leak": None}, det)  # colour not measured
     assert not fit_passes({**fit, "coherence_t": 2.0}, det)
-    assert not fit_passes(fit, det.replace(fit_max_leak_rgb=0.0))  # path off
+    assert not fit_passes(fit, det.with_values({"fit.max_leak_rgb": None}))  # path off
+    assert not fit_passes(fit, det.replace(fit=None))  # the fit off
     assert fit_passes({**fit, "rho": 0.96, "gain": 9.0, "chroma_leak": None}, det)
 
 
 def test_periodic_path_of_fit_passes():
     """A fit whose frame holds two or more pattern periods passes at the lower _periodic
-    thresholds; one of fewer periods needs the full gain; gain inf turns the path off."""
+    thresholds; one of fewer periods needs the full gain; gain None turns the path off."""
     from lishield_guard.config import PERIODIC_MIN_PERIODS, DetectorConfig
     from lishield_guard.detector.rules import fit_passes
 
-    det = DetectorConfig(fit_min_rho=0.9, fit_min_gain=8.0, fit_min_rho_periodic=0.85,
-                         fit_min_gain_periodic=2.0, sweep_min_coherence=3.0)
+    det = DetectorConfig().with_values({
+        "fit.min_rho": 0.9, "fit.min_gain": 8.0, "fit.min_rho_periodic": 0.85,
+        "fit.min_gain_periodic": 2.0, "sweep.min_coherence": 3.0})
     fit = {"rho": 0.9, "gain": 3.0, "coherence_t": 10.0, "chroma_leak": None,
            "n_periods": PERIODIC_MIN_PERIODS}
     assert fit_passes(fit, det)
@@ -184,6 +187,6 @@ def test_periodic_path_of_fit_passes():
     assert not fit_passes({**fit, "gain": 1.9}, det)
     assert not fit_passes({**fit, "rho": 0.84}, det)
     assert not fit_passes({**fit, "coherence_t": 2.9}, det)
-    assert not fit_passes(fit, det.replace(fit_min_gain_periodic=float("inf")))
+    assert not fit_passes(fit, det.with_values({"fit.min_gain_periodic": None}))
     assert fit_passes(fit, DetectorConfig())  # on in the shipped (default) thresholds
     assert fit_passes({**fit, "n_periods": 1.0, "gain": 8.0}, det)

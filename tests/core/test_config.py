@@ -8,6 +8,7 @@ from lishield_guard.config import (
     AppConfig,
     DetectorConfig,
     Limits,
+    PaperConfig,
     Policy,
     default_config,
     dump_config,
@@ -40,7 +41,8 @@ def test_default_config_loads():
 def test_dump_load_round_trip(tmp_path):
     custom = BarcodeSpec.mono("venue", [500, 750, 1000], duty=0.4, intensity_levels=3)
     cfg = AppConfig(
-        detector=DetectorConfig(profile="paper", ratio_tol=0.04, band_hz=(300.0, 12_000.0)),
+        detector=DetectorConfig(profile="paper",
+                                paper=PaperConfig(ratio_tol=0.04, band_hz=(300.0, 12_000.0))),
         limits=Limits(max_pixels=1_000_000, max_bytes=2_000_000),
         policies=(Policy("no-distribution", (PRESETS["table1-seq1"], custom), "desc"),
                   Policy("blur", (PRESETS["table2-rgb"],))),
@@ -71,24 +73,27 @@ def test_policy_ratio_values_are_union():
     [
         ("colour = 1\n", "unknown top-level keys"),
         ("[detector]\nmax_peakz = 3\n", r"unknown \[detector\] keys"),
+        ("[detector.fit]\nmax_gainz = 3\n", r"unknown \[detector.fit\] keys"),
+        ("[detector.tones]\nmin_tones = 2\n[detector]\nsweep = 3\n", "must be a table or false"),
+        ("[detector]\ntones = false\n", "must be a table"),
         ("[limits]\nmax_megabytes = 3\n", r"unknown \[limits\] keys"),
         ("[detector]\nprofile = \"fast\"\n", "profile"),
-        ("[detector]\nn_block_rows = 0\n", "n_block_rows"),
-        ("[detector]\nmax_peaks = 1.5\n", "max_peaks"),
-        ("[detector]\nband_hz = [15000, 400]\n", "band_hz"),
-        ("[detector]\nmin_row_rate_hz = 200000\n", "min_row_rate_hz"),
-        ("[detector]\nmax_downscale = 0.5\n", "max_downscale"),
-        ("[detector]\npeak_false_prob = 1.0\n", "peak_false_prob"),
-        ("[detector]\nratio_tol = -0.1\n", "ratio_tol"),
-        ("[detector]\nm_att = -1\n", "m_att"),
-        ("[detector]\norientations = \"diagonal\"\n", "orientations"),
-        ("[detector]\nfit_min_rho_rgb = 0.5\n", "fit_min_rho_rgb"),
-        ("[detector]\nfit_min_gain_rgb = nan\n", "fit_min_gain_rgb"),
-        ("[detector]\nfit_min_rho_periodic = 0.5\n", "fit_min_rho_periodic"),
-        ("[detector]\nfit_min_gain_periodic = nan\n", "fit_min_gain_periodic"),
-        ("[detector]\nfit_max_leak_rgb = -0.1\n", "fit_max_leak_rgb"),
+        ("[detector.paper]\nn_block_rows = 0\n", "n_block_rows"),
+        ("[detector.paper]\nmax_peaks = 1.5\n", "max_peaks"),
+        ("[detector.paper]\nband_hz = [15000, 400]\n", "band_hz"),
+        ("[detector.profiles]\nmin_row_rate_hz = 200000\n", "min_row_rate_hz"),
+        ("[detector.profiles]\nmax_downscale = 0.5\n", "max_downscale"),
+        ("[detector.tones]\npeak_false_prob = 1.0\n", "peak_false_prob"),
+        ("[detector.paper]\nratio_tol = -0.1\n", "ratio_tol"),
+        ("[detector.paper]\nm_att = -1\n", "m_att"),
+        ("[detector.profiles]\norientations = \"diagonal\"\n", "orientations"),
+        ("[detector.fit]\nmin_rho_rgb = 0.5\n", "fit.min_rho_rgb"),
+        ("[detector.fit]\nmin_gain_rgb = nan\n", "fit.min_gain_rgb"),
+        ("[detector.fit]\nmin_rho_periodic = 0.5\n", "fit.min_rho_periodic"),
+        ("[detector.fit]\nmin_gain_periodic = nan\n", "fit.min_gain_periodic"),
+        ("[detector.fit]\nmax_leak_rgb = -0.1\n", "fit.max_leak_rgb"),
         ("[limits]\nmax_bytes = 0\n", "max_bytes"),
-        ("[detector]\nratio_tol = \"a\"\n", "real number"),
+        ("[detector.paper]\nratio_tol = \"a\"\n", "real number"),
         ("[[policies]]\nid = \"p\"\npresets = [\"table9\"]\n", "unknown preset 'table9'"),
         ("[[policies]]\nid = \"p\"\n", "needs at least one barcode spec"),
         ("[[policies]]\ndescription = \"no id\"\n", "needs an 'id'"),
@@ -107,9 +112,9 @@ def test_bad_config_raises_config_error(tmp_path, text, match):
 
 
 @pytest.mark.parametrize("text", [
-    "[detector]\nn_block_rows = \"a\"\n",
-    "[detector]\nband_hz = \"x\"\n",
-    "[detector]\nband_hz = [400]\n",
+    "[detector.paper]\nn_block_rows = \"a\"\n",
+    "[detector.paper]\nband_hz = \"x\"\n",
+    "[detector.paper]\nband_hz = [400]\n",
     "policies = 3\n",
 ])
 def test_wrong_value_types_raise_config_error(tmp_path, text):
@@ -127,7 +132,7 @@ def test_dataclass_validation_messages_name_the_field():
     with pytest.raises(ConfigError, match="max_pixels"):
         Limits(max_pixels=0)
     with pytest.raises(ConfigError, match="n_col_blocks"):
-        DetectorConfig().replace(n_col_blocks=0)
+        DetectorConfig().with_values({"profiles.n_col_blocks": 0})
     with pytest.raises(ConfigError, match="policy id"):
         Policy("", (PRESETS["table1-seq1"],))
 
@@ -136,12 +141,13 @@ def test_dataclass_validation_messages_name_the_field():
 
 
 def test_partial_config_keeps_shipped_policies_and_calibrated_values(tmp_path):
-    cfg = load_config(_write(tmp_path, "[detector]\nfit_min_rho = 0.85\n"))
+    cfg = load_config(_write(tmp_path, "[detector.fit]\nmin_rho = 0.85\n"))
     shipped = default_config()
-    assert cfg.detector.fit_min_rho == 0.85
+    assert cfg.detector.fit.min_rho == 0.85
     assert cfg.policies == shipped.policies and cfg.policies
     # keys left out keep the shipped calibrated values
-    assert cfg.detector.replace(fit_min_rho=shipped.detector.fit_min_rho) == shipped.detector
+    assert cfg.detector.with_values({"fit.min_rho": shipped.detector.fit.min_rho}) \
+        == shipped.detector
     assert cfg.limits == shipped.limits
 
 
@@ -177,3 +183,49 @@ def test_merge_false_reads_the_file_alone(tmp_path):
 def test_limits_memory_budget_is_validated():
     with pytest.raises(ConfigError, match="max_decode_bytes"):
         Limits(max_decode_bytes=0)
+
+
+# --- #21 item 5: settings grouped per stage; None (``false`` in TOML) is off
+
+
+def test_a_flat_config_of_an_earlier_version_reads_as_its_groups(tmp_path):
+    flat = ("[detector]\nfit_min_gain = 5.0\ntone_rel_tol = 0.04\nscreen_min_frames = 3\n"
+            "n_block_rows = 2\nmodel_fit = true\nperiod_sweep = false\n"
+            "tone_min_fit_gain = -inf\nfit_max_leak_rgb = 0.0\nfit_min_gain_periodic = inf\n")
+    det = load_config(_write(tmp_path, flat)).detector
+    shipped = default_config().detector
+    assert det.fit.min_gain == 5.0 and det.tones.rel_tol == 0.04
+    assert det.screen.min_frames == 3 and det.paper.n_block_rows == 2
+    assert det.sweep is None  # period_sweep = false
+    # the old "off" values are None now
+    assert (det.tones.min_fit_gain, det.fit.max_leak_rgb, det.fit.min_gain_periodic) == (
+        None, None, None)
+    assert det.fit.min_rho == shipped.fit.min_rho  # keys left out keep the shipped values
+
+
+def test_false_turns_a_stage_or_an_optional_path_off_and_survives_dump(tmp_path):
+    text = ("[detector]\nfold = false\n[detector.screen]\npartial_false_prob = false\n"
+            "[detector.fit]\nmin_gain_periodic = false\n")
+    cfg = load_config(_write(tmp_path, text))
+    assert cfg.detector.fold is None
+    assert cfg.detector.screen.partial_false_prob is None
+    assert cfg.detector.fit.min_gain_periodic is None
+    assert cfg.detector.sweep == default_config().detector.sweep
+    again = tmp_path / "again.toml"
+    again.write_text(dump_config(cfg))
+    assert load_config(again, merge=False).detector == cfg.detector
+    assert "fold = false" in again.read_text()
+
+
+def test_settings_by_dotted_name():
+    det = DetectorConfig()
+    changed = det.with_values({"fit.min_gain": 3.0, "tones.min_tones": 3})
+    assert (changed.fit.min_gain, changed.tones.min_tones) == (3.0, 3)
+    assert changed.values()["fit.min_gain"] == 3.0 and det.values()["fit.min_gain"] == 8.0
+    assert det.replace(fit=None).values()["fit"] is None
+    with pytest.raises(ConfigError, match="unknown detector setting"):
+        det.with_values({"fitt.min_gain": 3.0})
+    with pytest.raises(ConfigError, match="the stage is off"):
+        det.replace(fit=None).with_values({"fit.min_gain": 3.0})
+    with pytest.raises(ConfigError, match="cannot be off"):
+        DetectorConfig(tones=None)

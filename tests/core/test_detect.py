@@ -38,7 +38,7 @@ def test_period_sweep_finds_a_frame_under_two_periods(make_led_image, name, swit
     sweep = v.evidence["best"]["sweep"]
     assert sweep["spec"] == name and "tiled every" in v.evidence["reason"]
     assert abs(sweep["switching_hz"] / switching_hz - 1) < 0.1
-    assert not detect(img, default_config().detector.replace(period_sweep=False)).protected
+    assert not detect(img, default_config().detector.replace(sweep=None)).protected
 
 
 def test_rotated_pixels_still_detected(make_led_image):
@@ -71,7 +71,7 @@ def test_pwm_dimming_is_not_a_barcode(make_led_image, pwm_hz):
 # below get past every other term of the fold, grid and exact-fit rules (asserted on the
 # evidence), so removing the look-alike margin, the gain's look-alike term or the per-plane
 # steady-square-wave gate (`fit.steady_rho` >= `LOOKALIKE_DOMINANT_RHO`) fails them.
-# The first stage is off (screen_false_prob=None) so that the search under test runs whatever
+# The first stage is off (screen=None) so that the search under test runs whatever
 # the screen would clear on its own; 720 x 960 frames and one spec keep each under about 3 s.
 
 LOOKALIKE_ROWS, LOOKALIKE_COLS = 720, 960
@@ -119,7 +119,7 @@ def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike
     assert not screened.protected
     assert _rows_candidate(screened)["reason"].startswith(
         "first stage: the stripes are a steady square wave"), screened.evidence["reason"]
-    cfg = _one_spec("table1-seq3", screen_false_prob=None)
+    cfg = _one_spec("table1-seq3", screen=None)
     det = cfg.detector
     v = detect(img, cfg)
     assert not v.protected, v.evidence["reason"]
@@ -127,8 +127,8 @@ def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike
     assert sw["steady_rho"] >= LOOKALIKE_DOMINANT_RHO, sw
     assert "fit" not in sw, "a plane the steady look-alike explains was refined"
     # every other term of the grid rule passes: only the margin over the look-alike fails
-    assert sw["rho"] >= det.sweep_min_rho and sw["coherence_t"] >= det.sweep_min_coherence, sw
-    assert sw["rho"] - sw["rho_lookalike"] < det.sweep_min_margin, sw
+    assert sw["rho"] >= det.sweep.min_rho and sw["coherence_t"] >= det.sweep.min_coherence, sw
+    assert sw["rho"] - sw["rho_lookalike"] < det.sweep.min_margin, sw
     assert sw["rho_lookalike"] > sw["rho"], sw
 
 
@@ -138,7 +138,7 @@ def test_sine_flicker_reaches_every_fit_and_only_the_lookalike_rejects_it(make_l
     and in each the steady look-alike fits the rows better still. Catches the fold margin, the
     grid margin or any gain term of `fit_rule` (or the gain's look-alike term) removed, and
     the gate lowered so far that this plane goes unrefined."""
-    cfg = _one_spec("table1-seq3", screen_false_prob=None)
+    cfg = _one_spec("table1-seq3", screen=None)
     det = cfg.detector
     img = make_led_image(None, flicker=_flicker("sine", 500.0, 0.3), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)
@@ -147,17 +147,17 @@ def test_sine_flicker_reaches_every_fit_and_only_the_lookalike_rejects_it(make_l
     rows = _rows_candidate(v)
     fold, sw = rows["fold"], rows["sweep"]
     # folding: rho and SNR pass, the margin over the look-alike does not
-    assert fold["rho"] >= det.fold_min_rho and fold["fold_snr"] >= det.fold_min_snr, fold
-    assert fold["rho"] - fold["rho_lookalike"] < det.fold_min_margin, fold
+    assert fold["rho"] >= det.fold.min_rho and fold["fold_snr"] >= det.fold.min_snr, fold
+    assert fold["rho"] - fold["rho_lookalike"] < det.fold.min_margin, fold
     # the grid: rho and coherence pass, the margin does not
     assert "steady_rho" not in sw, sw
-    assert sw["rho"] >= det.sweep_min_rho and sw["coherence_t"] >= det.sweep_min_coherence, sw
-    assert sw["rho"] - sw["rho_lookalike"] < det.sweep_min_margin, sw
+    assert sw["rho"] >= det.sweep.min_rho and sw["coherence_t"] >= det.sweep.min_coherence, sw
+    assert sw["rho"] - sw["rho_lookalike"] < det.sweep.min_margin, sw
     # the exact fit: rho, coherence and the periods of both the plain and the periodic path
     # pass; the look-alike fits better, so the gain is negative and fails both
     fit = sw["fit"]
-    assert fit["rho"] >= max(det.fit_min_rho, det.fit_min_rho_periodic), fit
-    assert fit["coherence_t"] >= det.sweep_min_coherence and fit["n_periods"] >= 2, fit
+    assert fit["rho"] >= max(det.fit.min_rho, det.fit.min_rho_periodic), fit
+    assert fit["coherence_t"] >= det.sweep.min_coherence and fit["n_periods"] >= 2, fit
     assert fit["rho_lookalike"] > fit["rho"] and fit["gain"] < 0, fit
 
 
@@ -180,7 +180,7 @@ def test_paper_profile_runs_algorithm_1(make_led_image):
     v = detect(make_led_image(PRESETS["table1-seq1"], switching_hz=200.0), PAPER)
     assert v.profile == "paper"
     n = len(PRESETS[v.evidence["best_spec"]].all_freqs_hz)
-    assert (PAPER.gamma, PAPER.m_att) == (0.1, 2)
+    assert (PAPER.paper.gamma, PAPER.paper.m_att) == (0.1, 2)
     assert v.required == {3: 3, 9: 6}[n]
     assert v.protected and v.matches >= v.required and v.policy == "no-distribution"
     assert v.evidence["frequencies_hz"]
@@ -245,8 +245,9 @@ def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     data, _ = render_item(_RGB_HIDDEN_IN_LUMA)
     cfg = default_config()
     lazy = detect(data, cfg)
-    full = decide(collect_evidence(decode(data, limits=cfg.limits, fast=True,
-                                          max_rows=cfg.detector.max_decode_rows), cfg), cfg)
+    dec = decode(data, limits=cfg.limits, fast=True,
+                 max_rows=cfg.detector.profiles.max_decode_rows)
+    full = decide(collect_evidence(dec, cfg), cfg)
     assert lazy.protected and lazy.policy == "no-distribution"
     assert not any("colour planes" in s for s in lazy.skipped)
     assert (lazy.protected, lazy.evidence["reason"]) == (full.protected, full.evidence["reason"])
@@ -280,7 +281,7 @@ def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
     assert desc["scene"] == {"scene": "skimage:coins"}
     # the sweep's grid fit alone reaches rho 0.74, which the shipped sweep_min_rho (0.7)
     # accepts; held at 0.8 the grid cannot decide, and only the exact fit can
-    det = default_config().detector.replace(sweep_min_rho=0.8)
+    det = default_config().detector.with_values({"sweep.min_rho": 0.8})
     assert detect(data, det).protected
     monkeypatch.setattr(fit_mod, "MATCHED_REFIT", False)
     assert not detect(data, det).protected
@@ -312,10 +313,10 @@ def test_jittering_pwm_tone_is_not_a_barcode_without_a_fit_that_beats_the_lookal
     data, desc = render_item(_PWM_ON_MOON)
     assert desc["scene"] == {"scene": "skimage:moon"}
     cfg = default_config()
-    assert cfg.detector.tone_min_fit_gain > 0
+    assert cfg.detector.tones.min_fit_gain > 0
     v = detect(data, cfg)
     assert not v.protected
     assert "not confirmed" in v.evidence["reason"]
-    off = cfg.detector.replace(tone_min_fit_gain=-np.inf)
+    off = cfg.detector.with_values({"tones.min_fit_gain": None})
     unchecked = detect(data, off)
     assert unchecked.protected and "alternate down the rows" in unchecked.evidence["reason"]

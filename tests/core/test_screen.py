@@ -61,16 +61,16 @@ def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
         [(c["axis"], c["reason"]) for c in v.evidence["candidates"]]
     # the grid is what the screen would otherwise count
     cfg = default_config()
-    dec = decode(buf.tobytes(), limits=cfg.limits, max_rows=cfg.detector.max_decode_rows)
+    dec = decode(buf.tobytes(), limits=cfg.limits, max_rows=cfg.detector.profiles.max_decode_rows)
     grid = jpeg_grid_cpr(dec.format, dec.row_scale)
     assert dec.row_scale == pytest.approx(8 / 3) and min(abs(g - 1 / 3) for g in grid) < 1e-6
     planes = [analyse_plane(np.ascontiguousarray(dec.rgb()[:, :, i]), axis, cfg, dec.row_scale)
               for i in range(3) for axis in (0, 1)]
     det = cfg.detector
-    assert any(screen_plane(pa, false_prob=det.screen_false_prob,
-                            min_frames=det.screen_min_frames).passed for pa in planes)
-    assert not any(screen_plane(pa, false_prob=det.screen_false_prob,
-                                min_frames=det.screen_min_frames, grid_cpr=grid).passed
+    assert any(screen_plane(pa, false_prob=det.screen.false_prob,
+                            min_frames=det.screen.min_frames).passed for pa in planes)
+    assert not any(screen_plane(pa, false_prob=det.screen.false_prob,
+                                min_frames=det.screen.min_frames, grid_cpr=grid).passed
                    for pa in planes)
 
 
@@ -116,22 +116,22 @@ def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
     img = make_led_image(PRESETS["table1-seq1"], switching_hz=300.0, lit_fraction=0.5,
                          ambient=0.5)
     pa = analyse_plane(decode(img, limits=cfg.limits).luma, 0, cfg)
-    on_all = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames)
+    on_all = screen_plane(pa, false_prob=det.screen.false_prob, min_frames=det.screen.min_frames)
     assert not on_all.passed
-    halves = screen_plane(pa, false_prob=det.screen_false_prob, min_frames=det.screen_min_frames,
-                          partial_false_prob=det.screen_partial_false_prob,
-                          partial_min_frames=det.screen_partial_min_frames)
+    halves = screen_plane(pa, false_prob=det.screen.false_prob, min_frames=det.screen.min_frames,
+                          partial_false_prob=det.screen.partial_false_prob,
+                          partial_min_frames=det.screen.partial_min_frames)
     assert halves.passed and halves.via == "right half", halves
-    assert detect(img, det.replace(screen_false_prob=None)).protected
+    assert detect(img, det.replace(screen=None)).protected
     assert detect(img).protected
-    assert not detect(img, det.replace(screen_partial_false_prob=None)).protected
+    assert not detect(img, det.with_values({"screen.partial_false_prob": None})).protected
 
 
 def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
     """Barcodes of random presets, rates, exposures and ambient: each one the full cascade
     flags (screen off) is flagged with the screen on."""
     base = default_config()
-    full = base.detector.replace(screen_false_prob=None)
+    full = base.detector.replace(screen=None)
     flagged = 0
     for _ in range(6):
         name = str(rng.choice(["table1-seq1", "table1-seq2", "table1-seq3", "table2-rgb"]))
@@ -170,7 +170,7 @@ def test_a_cleared_photo_pays_neither_tone_tracks_nor_sub_block_detrending(make_
     assert v.status == "clean"
     assert all(c["stage"] == FIRST_STAGE and c["n_matched"] == 0
                for c in v.evidence["candidates"])
-    n_blocks = default_config().detector.n_col_blocks
+    n_blocks = default_config().detector.profiles.n_col_blocks
     assert sizes.count(n_blocks) == 8  # L, R, G, B along rows and columns
     assert sum(s > n_blocks for s in sizes) <= 2  # the halves test, luma only
 

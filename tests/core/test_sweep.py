@@ -127,7 +127,8 @@ def test_refinement_stays_inside_the_period_range(rng):
     from lishield_guard import DetectorConfig, detect
 
     img = rng.integers(0, 256, (64, 200), dtype=np.uint8)
-    assert not detect(img, DetectorConfig(max_row_rate_hz=200_000.0)).protected
+    det = DetectorConfig().with_values({"profiles.max_row_rate_hz": 200_000.0})
+    assert not detect(img, det).protected
 
 
 def test_fit_periods_leave_two_slots_in_the_frame():

@@ -148,17 +148,27 @@ def test_exit_code_table_is_in_the_help(run_cli):
 
 def test_config_validate_and_show_effective(tmp_path, run_cli):
     partial = tmp_path / "mine.toml"
-    partial.write_text("[detector]\nfit_min_rho = 0.85\n")
+    partial.write_text("[detector.fit]\nmin_rho = 0.85\n")
     res = run_cli("config", "validate", partial)
     assert res.exit_code == 0, res.output
-    assert "1 policy (no-distribution)" in res.output and "detector.fit_min_rho=0.85" in res.output
+    assert "1 policy (no-distribution)" in res.output and "detector.fit.min_rho=0.85" in res.output
     res = run_cli("config", "show", "--config", partial, "--effective")
     assert res.exit_code == 0
     back = lishield_guard.load_config(_write(tmp_path / "eff.toml", res.output))
     assert back == lishield_guard.load_config(partial)
-    assert "fit_min_rho = 0.85" in res.output and "[[policies]]" in res.output
+    assert "[detector.fit]" in res.output and "min_rho = 0.85" in res.output
+    assert "[[policies]]" in res.output
     assert run_cli("config", "show", "--config", partial).output.strip() == \
         partial.read_text().strip()
+
+
+def test_config_validate_names_a_stage_turned_off(tmp_path, run_cli):
+    off = tmp_path / "off.toml"
+    off.write_text("[detector]\nfold = false\n")
+    res = run_cli("config", "validate", off)
+    assert res.exit_code == 0, res.output
+    assert "detector.fold=None" in res.output
+    assert lishield_guard.load_config(off).detector.fold is None
 
 
 def test_config_validate_refuses_a_config_without_policies(tmp_path, run_cli):
