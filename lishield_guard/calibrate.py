@@ -90,6 +90,7 @@ from lishield_guard.detector.pipeline import (
     spec_planes,
     sweep_fits,
 )
+from lishield_guard.detector.results import SweepResult
 from lishield_guard.detector.rules import fit_rule, fold_rule, grid_rule, tone_check_on, tone_rule
 from lishield_guard.detector.tones import match_spec, scale_range_cpr_per_hz
 
@@ -443,14 +444,15 @@ def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = No
     evidence = collect_evidence(decoded, config)
     # fits of specs the first stage clears never decide (pipeline.decide skips them)
     screened = screened_candidates(evidence, config)
-    folds = [f for f in fold_fits(evidence, config)
-             if screened[_candidate_index(f, config)]]
-    sweeps = [f for f in (sweep_fits(evidence, config) if (det.sweep is not None) else [])
-              if screened[_candidate_index(f, config)]]
+    folds = [f for axis, _, f in fold_fits(evidence, config)
+             if screened[_candidate_index(axis, f.spec, config)]]
+    sweeps = [(e, i) for axis, _, e in (sweep_fits(evidence, config)
+                                        if det.sweep is not None else [])
+              if screened[i := _candidate_index(axis, e.spec, config)]]
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
-           "folds": np.array([[f["rho"], f["rho_lookalike"], f["fold_snr"]] for f in folds],
+           "folds": np.array([[f.rho, f.rho_lookalike, f.fold_snr] for f in folds],
                              dtype=float).reshape(-1, 3),
-           "sweeps": np.array([sweep_row(f, _candidate_index(f, config)) for f in sweeps],
+           "sweeps": np.array([sweep_row(e, i) for e, i in sweeps],
                               dtype=float).reshape(-1, len(SWEEP_COLUMNS))}
     if paper_grid is not None:
         t0 = time.perf_counter()
@@ -472,20 +474,24 @@ SWEEP_COLUMNS = ("rho", "rho_lookalike", "coherence_t", "fit_rho", "fit_gain", "
                  "fit_leak", "candidate", "fit_periods")
 
 
-def _candidate_index(info: dict, config: AppConfig) -> int:
-    """Column of `candidate_table` (axis, spec) that a `sweep_fits` entry belongs to."""
+def _candidate_index(axis: str, spec: str, config: AppConfig) -> int:
+    """Column of `candidate_table` (axis, spec) that a fold or sweep entry belongs to."""
     names = [s.name for s in _specs(config)]
-    return AXES.index(info["axis"]) * len(names) + names.index(info["spec"])
+    return AXES.index(axis) * len(names) + names.index(spec)
 
 
-def sweep_row(info: dict, candidate: int = -1) -> list[float]:
+def sweep_row(entry: SweepResult, candidate: int = -1) -> list[float]:
     """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made;
     ``candidate`` is its `candidate_table` column, -1 when unknown)."""
-    fit = info.get("fit") or {"rho": 0.0, "gain": 0.0, "coherence_t": 0.0, "n_periods": 0.0}
-    leak = fit.get("chroma_leak")
-    return [info["rho"], info["rho_lookalike"], info["coherence_t"], fit["rho"], fit["gain"],
-            fit["coherence_t"], math.inf if leak is None else leak, float(candidate),
-            fit["n_periods"]]
+    fit = entry.fit
+    if fit is None:
+        fit_cols = [0.0, 0.0, 0.0, math.inf, 0.0]
+    else:
+        leak = math.inf if fit.chroma_leak is None else fit.chroma_leak
+        fit_cols = [fit.rho, fit.gain, fit.coherence_t, leak, fit.n_periods]
+    f_rho, f_gain, f_t, leak, f_periods = fit_cols
+    return [entry.rho, entry.rho_lookalike, entry.coherence_t, f_rho, f_gain, f_t, leak,
+            float(candidate), f_periods]
 
 
 def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorConfig

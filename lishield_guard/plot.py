@@ -226,6 +226,11 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(a @ b) / den if den > 0 else 0.0
 
 
+def _num(value, fmt: str = ".3f") -> str:
+    """A number as printed in the figure (None or a non-number as given)."""
+    return format(value, fmt) if isinstance(value, int | float) else str(value)
+
+
 def _ok(value, need) -> str:
     try:
         return "[pass]" if float(value) >= float(need) else "[FAIL]"
@@ -264,11 +269,11 @@ def _threshold_lines(stage: str, info: dict | None, det, verdict) -> list[str]:
             path += ", >= 2 periods"
         lines.append(f"{_ok(rho, need_rho)} correlation rho {rho:.3f}   (needs >= {need_rho:g};"
                      f" {path} path)" if rho is not None and need_rho is not None
-                     else f"rho {rho}")
+                     else f"rho {_num(rho)}")
         gain = info.get("gain")
         if gain is not None and need_gain is not None:
             lines.append(f"{_ok(gain, need_gain)} gain over the look-alike {gain:.2f}   (needs >= "
-                         f"{need_gain:g}); look-alike rho {alt}")
+                         f"{need_gain:g}); look-alike rho {_num(alt)}")
         t = info.get("coherence_t")
         need_t = g("sweep.min_coherence")
         if t is not None and need_t is not None:
@@ -279,12 +284,14 @@ def _threshold_lines(stage: str, info: dict | None, det, verdict) -> list[str]:
             lines.append(f"chroma leak {leak:.2f}   (colour path " + (
                 "off)" if max_leak is None else f"needs <= {max_leak:g})"))
     elif stage == "period-sweep grid fit":
-        lines.append(f"grid rho {rho}  (needs >= {g('sweep.min_rho')}); look-alike rho {alt} "
-                     f"(margin needs >= {g('sweep.min_margin')}); coherence t "
-                     f"{info.get('coherence_t')} (needs >= {g('sweep.min_coherence')})")
+        lines.append(f"grid rho {_num(rho)}  (needs >= {g('sweep.min_rho')}); look-alike rho "
+                     f"{_num(alt)} (margin needs >= {g('sweep.min_margin')}); coherence t "
+                     f"{_num(info.get('coherence_t'), '.1f')} (needs >= "
+                     f"{g('sweep.min_coherence')})")
     elif stage == "pattern folding":
-        lines.append(f"folded rho {rho}  (needs >= {g('fold.min_rho')}); look-alike rho {alt}; "
-                     f"fold SNR {info.get('fold_snr')} (needs >= {g('fold.min_snr')})")
+        lines.append(f"folded rho {_num(rho)}  (needs >= {g('fold.min_rho')}); look-alike rho "
+                     f"{_num(alt)}; fold SNR {_num(info.get('fold_snr'), '.1f')} (needs >= "
+                     f"{g('fold.min_snr')})")
     extras = [f"{k} {info[k]}" for k in ("phase_mode", "slot_order", "switching_hz")
               if info.get(k) is not None]
     geom = [f"period {info['period_rows']:.1f} rows" if info.get("period_rows") else None,
@@ -381,7 +388,7 @@ def verdict_figure(source, verdict, config):
                 ax_rows.plot(rows, _scaled(tpl, y), color="tab:red", lw=1.3,
                              label=f"fitted {spec.name} template ({channel}, slot order {order}, "
                                    f"{getattr(espec, 'phase', 'restart')} phase): rho "
-                                   f"{_corr(tpl, y):.3f} here, {info.get('rho')} reported")
+                                   f"{_corr(tpl, y):.3f} here, {_num(info.get('rho'))} reported")
             except (ValueError, TypeError, KeyError, IndexError):
                 pass
         try:
@@ -393,7 +400,7 @@ def verdict_figure(source, verdict, config):
             ax_rows.plot(rows, _scaled(alt_rows, y), color="tab:blue", lw=1.0, ls="--",
                          label=f"best steady square wave (look-alike): {1 / p['freq_cpr']:.1f} "
                                f"rows/cycle, duty {p['duty']:.2f}, rho {p['rho']:.3f} here, "
-                               f"{info.get('rho_lookalike')} reported")
+                               f"{_num(info.get('rho_lookalike'))} reported")
     line_name = "sensor row" if axis == 0 else "sensor row (stored image columns)"
     if row_scale != 1.0:
         line_name += f", decoded at 1/{row_scale:g}"

@@ -139,7 +139,7 @@ MUTANTS: tuple[Mutant, ...] = (
           "grid_rule(rho, alt, t, det) | 0 * fit_rule(", path="lishield_guard/calibrate.py",
           extra=TABLE_TESTS),
     _rule("detect-sweep-drops-fit", "rules.sweep_passes: only the grid rule (exact fits "
-          "ignored)", "sweep_passes", " or fit_passes(info.get(\"fit\"), det)", ""),
+          "ignored)", "sweep_passes", " or fit_passes(entry.fit, det)", ""),
     # --- scan --resume
     Mutant("resume-rescans-all", "resume", "scan --resume reads no done keys: every input is "
            "scanned again and appended",

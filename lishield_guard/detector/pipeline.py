@@ -30,6 +30,7 @@ from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, refine, steady_r
 from lishield_guard.detector.fold import candidate_periods, fold_match, refine_period
 from lishield_guard.detector.paper import run_paper
 from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
+from lishield_guard.detector.results import FoldResult, SweepResult
 from lishield_guard.detector.rules import (
     fold_passes,
     grid_passes,
@@ -277,10 +278,10 @@ def _decide_axis(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         return _periods(planes["L"], screened, det)
 
     @cache
-    def sweeps(name: str) -> list[dict]:
+    def sweeps(name: str) -> list[SweepResult]:
         # per spec, when first needed: a verdict reached on one spec spares the others
         return _axis_sweeps(planes, [ps for ps in screened if ps[1].name == name], det,
-                            periods(), stop=lambda info: sweep_passes(info, det))[name]
+                            periods(), stop=lambda entry: sweep_passes(entry, det))[name]
 
     for pid, spec in specs:
         chans = spec_planes(spec, planes)
@@ -330,51 +331,50 @@ def _cleared_by_screen(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], scree
                      stage="first stage")
 
 
-def _fold_stage(m: SpecMatch, spec: BarcodeSpec, info: dict | None,
+def _fold_stage(m: SpecMatch, spec: BarcodeSpec, fold: FoldResult | None,
                 det: DetectorConfig) -> SpecMatch:
-    """``m`` after folding: protected when the best fold fit ``info`` passes `fold_passes`."""
-    if info is None:
+    """``m`` after folding: protected when the best fold fit ``fold`` passes `fold_passes`."""
+    if fold is None:
         return m
-    if not fold_passes(info, det):
-        return replace(m, fold=info, stage="fold")
-    reason = (f"the stripes repeat every {info['period_rows']:.1f} rows and the "
-              f"folded pattern fits {spec.name} (rho={info['rho']:.2f}, "
-              f"{info['cycles_per_slot_f1']:.2f} cycles of f_1 per slot)")
-    return replace(m, protected=True, reason=reason, fold=info, stage="fold")
+    if not fold_passes(fold, det):
+        return replace(m, fold=fold, stage="fold")
+    reason = (f"the stripes repeat every {fold.match.period_rows:.1f} rows and the "
+              f"folded pattern fits {spec.name} (rho={fold.rho:.2f}, "
+              f"{fold.match.cycles_f1:.2f} cycles of f_1 per slot)")
+    return replace(m, protected=True, reason=reason, fold=fold, stage="fold")
 
 
-def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, fits: list[dict],
+def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, entries: list[SweepResult],
                  det: DetectorConfig) -> SpecMatch:
-    """``m`` after the period sweep and its exact fits (one entry per channel, ``fits``):
+    """``m`` after the period sweep and its exact fits (one entry per channel, ``entries``):
     protected when one passes `sweep_passes`; the stage named is the one that passed."""
-    passing = [f for f in fits if sweep_passes(f, det)]
-    sw = max(passing or fits, key=lambda f: (grid_passes(f, det),
-                                             f["rho"] - f["rho_lookalike"]),
+    passing = [e for e in entries if sweep_passes(e, det)]
+    sw = max(passing or entries, key=lambda e: (grid_passes(e, det),
+                                                e.rho - e.rho_lookalike),
              default=None)
     if sw is None:
         return m
     if not passing:
-        return replace(m, sweep=sw, stage="exact fit" if sw.get("fit") else "sweep")
+        return replace(m, sweep=sw, stage="sweep" if sw.fit is None else "exact fit")
     if not grid_passes(sw, det):
-        fit = sw["fit"]
-        reason = (f"{spec.name}'s exact capture model ({sw['channel']}: period "
-                  f"{fit['period_rows']:.1f} rows, {fit['cycles_per_slot_f1']:.2f} "
-                  f"cycles of f_1 per slot, exposure {fit['exposure_slots']:.2f} slot, "
-                  f"{fit['n_periods']:.2f} periods in the frame) "
-                  f"fits the rows ({fit['domain']}, rho={fit['rho']:.3f}) "
-                  f"{fit['gain']:.1f}x "
+        fit = sw.fit
+        reason = (f"{spec.name}'s exact capture model ({sw.channel}: period "
+                  f"{fit.period_rows:.1f} rows, {fit.cycles_f1:.2f} "
+                  f"cycles of f_1 per slot, exposure {fit.exposure_slots:.2f} slot, "
+                  f"{fit.n_periods:.2f} periods in the frame) "
+                  f"fits the rows ({fit.domain}, rho={fit.rho:.3f}) {fit.gain:.1f}x "
                   f"better than any steady square wave (look-alike rho="
-                  f"{fit['rho_lookalike']:.3f}), with the same amplitude in every "
-                  f"column block (t={fit['coherence_t']:.1f})"
-                  + ("" if fit.get("chroma_leak") is None else
+                  f"{fit.rho_lookalike:.3f}), with the same amplitude in every "
+                  f"column block (t={fit.coherence_t:.1f})"
+                  + ("" if fit.chroma_leak is None else
                      f" and in its own colour plane only (chroma leak "
-                     f"{fit['chroma_leak']:.2f})"))
+                     f"{fit.chroma_leak:.2f})"))
         return replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
-    reason = (f"{spec.name}'s pattern ({sw['channel']}), tiled every "
-              f"{sw['period_rows']:.1f} rows ({sw['n_periods']:.2f} periods in the "
-              f"frame), fits the stripes (rho={sw['rho']:.2f}, look-alike "
-              f"{sw['rho_lookalike']:.2f}) with the same amplitude in every column "
-              f"block (t={sw['coherence_t']:.1f})")
+    reason = (f"{spec.name}'s pattern ({sw.channel}), tiled every "
+              f"{sw.match.period_rows:.1f} rows ({sw.match.n_periods:.2f} periods in the "
+              f"frame), fits the stripes (rho={sw.rho:.2f}, look-alike "
+              f"{sw.rho_lookalike:.2f}) with the same amplitude in every column "
+              f"block (t={sw.coherence_t:.1f})")
     return replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
 
 
@@ -431,7 +431,8 @@ def _colour_blocks(planes: dict[str, PlaneAnalysis]) -> dict[str, np.ndarray] | 
 
 
 def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
-                 periods: list[float] | None = None, stop=None) -> dict[str, list[dict]]:
+                 periods: list[float] | None = None, stop=None
+                 ) -> dict[str, list[SweepResult]]:
     """Period-sweep fits of every spec on one axis, one per channel plane (spec name -> fits).
 
     Specs fitted on the same plane share one period grid. Each channel is judged on its own:
@@ -447,7 +448,7 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 by_plane.setdefault(id(pa), (pa, []))[1].extend(
                     (v, c) for v in emitter_variants(spec))
     scale = scale_range_cpr_per_hz(det)
-    out: dict[str, list[dict]] = {spec.name: [] for _, spec in specs}
+    out: dict[str, list[SweepResult]] = {spec.name: [] for _, spec in specs}
     for pa, targets in by_plane.values():
         ranges = [_frame_period_range(s, det, pa.n_rows) for s, _ in targets]
         blocks = pa.fit_blocks
@@ -464,38 +465,37 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
         for (spec, c), sm, rng in zip(targets, fits, ranges, strict=True):
             if sm is None:
                 continue
-            info = {**sm.to_dict(), "channel": c, "emitter": variant_label(spec)}
+            entry = SweepResult(sm, c, variant_label(spec))
             if steady >= LOOKALIKE_DOMINANT_RHO:
-                info["steady_rho"] = steady
+                entry = replace(entry, steady_rho=steady)
             elif det.fit is not None:
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
                 mf = refine(blocks, spec, c, starts, period_range_rows=rng,
                             scale_range_cpr_per_hz=scale,
                             colour_blocks=_colour_blocks(planes) if spec.is_rgb else None)
-                if mf is not None:
-                    info["fit"] = mf.to_dict()
-            out[spec.name].append(info)
-            if stop is not None and stop(info):
+                entry = replace(entry, fit=mf)
+            out[spec.name].append(entry)
+            if stop is not None and stop(entry):
                 return {name: _best_variants(infos) for name, infos in out.items()}
     return {name: _best_variants(infos) for name, infos in out.items()}
 
 
-def _variant_rank(info: dict) -> tuple:
+def _variant_rank(entry: SweepResult) -> tuple:
     """How well an emitter variant's sweep entry explains the rows: an exact fit's gain over
     the steady look-alike first (when it reached `config.FIT_RHO_FLOOR`), then the grid's
     margin over the look-alike."""
-    fit = info.get("fit")
-    good = fit is not None and fit["rho"] >= FIT_RHO_FLOOR
-    return (good, fit["gain"] if good else -math.inf, info["rho"] - info["rho_lookalike"])
+    fit = entry.fit
+    good = fit is not None and fit.rho >= FIT_RHO_FLOOR
+    return (good, fit.gain if good else -math.inf, entry.rho - entry.rho_lookalike)
 
 
-def _best_variants(infos: list[dict]) -> list[dict]:
+def _best_variants(entries: list[SweepResult]) -> list[SweepResult]:
     """One sweep entry per channel: the emitter variant that explains the rows best."""
-    best: dict[str, dict] = {}
-    for info in infos:
-        c = info["channel"]
-        if c not in best or _variant_rank(info) > _variant_rank(best[c]):
-            best[c] = info
+    best: dict[str, SweepResult] = {}
+    for entry in entries:
+        c = entry.channel
+        if c not in best or _variant_rank(entry) > _variant_rank(best[c]):
+            best[c] = entry
     return list(best.values())
 
 
@@ -511,28 +511,29 @@ def _screened_axes(evidence: Evidence, config: AppConfig):
         yield axis_name, planes, det, specs, _periods(planes["L"], specs, det)
 
 
-def sweep_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis
-    (for calibration sweeps; the specs and candidate periods `decide` searches)."""
+def sweep_fits(evidence: Evidence, config: AppConfig) -> list[tuple[str, str, SweepResult]]:
+    """Unthresholded period-sweep fits of every spec the first stage passes, on every axis, as
+    (axis name, policy id, entry) (for calibration sweeps; the specs and candidate periods
+    `decide` searches)."""
     out = []
     for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         sweeps = _axis_sweeps(planes, specs, det, periods)
         for pid, spec in specs:
-            for info in sweeps[spec.name]:
-                out.append({"axis": axis_name, "policy": pid, **info})
+            out += [(axis_name, pid, entry) for entry in sweeps[spec.name]]
     return out
 
 
-def fold_fits(evidence: Evidence, config: AppConfig) -> list[dict]:
-    """Unthresholded fold fits of every spec the first stage passes, on every axis (for
-    calibration sweeps; the specs and candidate periods `decide` searches)."""
+def fold_fits(evidence: Evidence, config: AppConfig) -> list[tuple[str, str, FoldResult]]:
+    """Unthresholded fold fits of every spec the first stage passes, on every axis, as (axis
+    name, policy id, fit) (for calibration sweeps; the specs and candidate periods `decide`
+    searches)."""
     out = []
     for axis_name, planes, det, specs, periods in _screened_axes(evidence, config):
         for pid, spec in specs:
             chans = spec_planes(spec, planes)
-            info = _fold_info(spec, chans, periods, det) if chans else None
-            if info is not None:
-                out.append({"axis": axis_name, "policy": pid, **info})
+            fold = _fold_info(spec, chans, periods, det) if chans else None
+            if fold is not None:
+                out.append((axis_name, pid, fold))
     return out
 
 
@@ -563,7 +564,7 @@ def _periods(luma: PlaneAnalysis, specs, det: DetectorConfig) -> list[float]:
 
 
 def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list[float],
-               det: DetectorConfig) -> dict | None:
+               det: DetectorConfig) -> FoldResult | None:
     """Best fold fit of ``spec`` over its channels' planes (mean rho over channels)."""
     if not periods or any(pa.common is None for pa in chans.values()):
         return None
@@ -577,13 +578,12 @@ def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list
             if fm is None:
                 return None
             fits.append(fm)
-        info = {**fits[0].to_dict(), "rho": float(np.mean([f.rho for f in fits])),
-                "rho_lookalike": float(np.mean([f.rho_lookalike for f in fits])),
-                "fold_snr": float(min(f.fold_snr for f in fits)), "channels": len(fits),
-                "emitter": variant_label(variant)}
-        if best is None or info["rho"] - info["rho_lookalike"] > (best["rho"]
-                                                                 - best["rho_lookalike"]):
-            best = info
+        fold = FoldResult(fits[0], float(np.mean([f.rho for f in fits])),
+                          float(np.mean([f.rho_lookalike for f in fits])),
+                          float(min(f.fold_snr for f in fits)), len(fits),
+                          variant_label(variant))
+        if best is None or fold.rho - fold.rho_lookalike > best.rho - best.rho_lookalike:
+            best = fold
     return best
 
 

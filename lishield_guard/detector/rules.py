@@ -2,8 +2,9 @@
 
 The rules (`grid_rule`, `fit_rule`, `tone_rule`, `fold_rule`) are written over numbers or
 same-shape arrays (``&`` and ``|`` rather than ``and`` and ``or``): detection applies them to
-one fit (`grid_passes`, `fit_passes`, `sweep_passes`, `fold_passes`, `tone_fit_confirms`),
-calibration (`calibrate.sweep_protected` and friends) to whole tables of cached fits.
+one typed stage result (`results.SweepResult`, `results.FoldResult`, `fit.ModelFit`; in
+`grid_passes`, `fit_passes`, `sweep_passes`, `fold_passes`, `tone_fit_confirms`), calibration
+(`calibrate.sweep_protected` and friends) to whole tables of cached fits.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import math
 import numpy as np
 
 from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, DetectorConfig
+from lishield_guard.detector.fit import ModelFit
+from lishield_guard.detector.results import FoldResult, SweepResult
 
 __all__ = ["fit_passes", "fit_rule", "fold_passes", "fold_rule", "grid_passes", "grid_rule",
            "sweep_passes", "tone_check_on", "tone_fit_confirms", "tone_rule"]
@@ -72,30 +75,29 @@ def fold_rule(rho, rho_lookalike, fold_snr, det: DetectorConfig):
             & (rho - rho_lookalike >= det.fold.min_margin))
 
 
-def grid_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether the sweep's own (binned-grid) fit passes `grid_rule`."""
-    return bool(grid_rule(info["rho"], info["rho_lookalike"], info["coherence_t"], det))
+def grid_passes(entry: SweepResult, det: DetectorConfig) -> bool:
+    """Whether a period-sweep entry's own (binned-grid) fit passes `grid_rule`."""
+    return bool(grid_rule(entry.rho, entry.rho_lookalike, entry.coherence_t, det))
 
 
-def fit_passes(fit: dict | None, det: DetectorConfig) -> bool:
-    """Whether an exact-model fit (`fit.ModelFit.to_dict`, or None) passes `fit_rule`."""
+def fit_passes(fit: ModelFit | None, det: DetectorConfig) -> bool:
+    """Whether an exact-model fit (or None: none made) passes `fit_rule`."""
     if fit is None:
         return False
-    leak = fit.get("chroma_leak")
-    return bool(fit_rule(fit["rho"], fit["gain"], fit["coherence_t"], fit["n_periods"],
+    leak = fit.chroma_leak
+    return bool(fit_rule(fit.rho, fit.gain, fit.coherence_t, fit.n_periods,
                          math.inf if leak is None else leak, det))
 
 
-def sweep_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a period-sweep fit (`sweep_fits` entry) is evidence enough for protected:
-    the grid fit passes `grid_rule`, or its exact-model refinement passes `fit_passes`."""
-    return grid_passes(info, det) or fit_passes(info.get("fit"), det)
+def sweep_passes(entry: SweepResult, det: DetectorConfig) -> bool:
+    """Whether a period-sweep entry is evidence enough for protected: the grid fit passes
+    `grid_rule`, or its exact-model refinement passes `fit_passes`."""
+    return grid_passes(entry, det) or fit_passes(entry.fit, det)
 
 
-def fold_passes(info: dict, det: DetectorConfig) -> bool:
-    """Whether a fold fit (`fold_fits` entry) passes `fold_rule` (evidence enough for a
-    verdict of protected)."""
-    return bool(fold_rule(info["rho"], info["rho_lookalike"], info["fold_snr"], det))
+def fold_passes(fold: FoldResult, det: DetectorConfig) -> bool:
+    """Whether a fold fit passes `fold_rule` (evidence enough for a verdict of protected)."""
+    return bool(fold_rule(fold.rho, fold.rho_lookalike, fold.fold_snr, det))
 
 
 def tone_check_on(det: DetectorConfig) -> bool:
@@ -104,9 +106,9 @@ def tone_check_on(det: DetectorConfig) -> bool:
     return det.tones.min_fit_gain is not None and det.sweep is not None and det.fit is not None
 
 
-def tone_fit_confirms(fits: list[dict], det: DetectorConfig) -> bool:
+def tone_fit_confirms(entries: list[SweepResult], det: DetectorConfig) -> bool:
     """Whether one spec's period-sweep entries on one axis confirm its tone tracks: one of them
     has an exact-model fit passing `tone_rule`."""
-    return any(f.get("fit") is not None
-               and bool(tone_rule(f["fit"]["rho"], f["fit"]["gain"], f["fit"]["coherence_t"], det))
-               for f in fits)
+    return any(e.fit is not None and bool(tone_rule(e.fit.rho, e.fit.gain, e.fit.coherence_t,
+                                                    det))
+               for e in entries)

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lishield_guard.config import DetectorConfig
 from lishield_guard.detector.tracks import PlaneAnalysis
 from lishield_guard.spec import BarcodeSpec
+
+if TYPE_CHECKING:  # the pattern stages' results ride along; tones does not run those stages
+    from lishield_guard.detector.results import FoldResult, SweepResult
 
 __all__ = ["SpecMatch", "match_spec", "scale_range_cpr_per_hz"]
 
@@ -49,8 +53,11 @@ class SpecMatch:
         All decision rules hold.
     reason : str
         Why the rules hold or which one fails.
-    fold, sweep : dict or None
-        The folding and period-sweep evidence, when those stages ran.
+    fold : results.FoldResult or None
+        The best fold fit, when folding ran.
+    sweep : results.SweepResult or None
+        The period-sweep entry (with its exact fit) that decided or came closest, when the
+        sweep ran.
     stage : str
         The stage that decided: ``"first stage"`` (no pattern search), ``"tones"``,
         ``"fold"``, ``"sweep"`` (the grid fit) or ``"exact fit"``; for a spec no stage flagged,
@@ -67,15 +74,15 @@ class SpecMatch:
     switches: int
     protected: bool
     reason: str
-    fold: dict | None = None
-    sweep: dict | None = None
+    fold: FoldResult | None = None
+    sweep: SweepResult | None = None
     stage: str = "tones"
 
     @property
     def score(self) -> float:
         """Evidence strength in [0, 1]: purity times the fraction of required tones found."""
         if self.protected and (self.fold or self.sweep):
-            return float((self.fold if self.sweep is None else self.sweep)["rho"])
+            return float((self.fold if self.sweep is None else self.sweep).rho)
         if self.required <= 0:
             return 0.0
         return float(min(1.0, self.n_matched / self.required) * min(1.0, self.purity))
@@ -88,8 +95,10 @@ class SpecMatch:
                 "occupancy": {c: [float(o) for o in v] for c, v in self.occupancy.items()},
                 "matched_hz": self.matched, "n_matched": self.n_matched,
                 "required": self.required, "purity": float(self.purity),
-                "switches": self.switches, "reason": self.reason, "fold": self.fold,
-                "sweep": self.sweep, "stage": self.stage}
+                "switches": self.switches, "reason": self.reason,
+                "fold": None if self.fold is None else self.fold.to_dict(),
+                "sweep": None if self.sweep is None else self.sweep.to_dict(),
+                "stage": self.stage}
 
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:

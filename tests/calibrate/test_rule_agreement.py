@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -32,7 +33,10 @@ from lishield_guard.config import (
     SweepConfig,
     ToneConfig,
 )
+from lishield_guard.detector.fold import FoldMatch
+from lishield_guard.detector.results import FoldResult, SweepResult
 from lishield_guard.detector.rules import fold_passes, sweep_passes, tone_fit_confirms
+from lishield_guard.detector.sweep import SweepMatch
 
 # The two constants the rules use, restated: the literal rules below use these numbers.
 TONE_RHO_FLOOR = 0.8  # config.FIT_RHO_FLOOR
@@ -104,6 +108,24 @@ def _info(rho=0.0, la=0.0, t=0.0, fit=None) -> dict:
     return {"rho": rho, "rho_lookalike": la, "coherence_t": t, "fit": fit}
 
 
+def _fold_result(rho: float, rho_lookalike: float, snr: float) -> FoldResult:
+    """The typed fold result detection judges, with these numbers."""
+    match = FoldMatch("x", rho, period_rows=100.0, cycles_f1=1.0, fold_snr=snr, n_periods=3.0,
+                      rho_lookalike=rho_lookalike)
+    return FoldResult(match, rho, rho_lookalike, snr, 1, "")
+
+
+def _entry(info: dict) -> SweepResult:
+    """The typed sweep entry detection judges, carrying ``info``'s numbers. Its fit is a
+    stand-in with the attributes the rules read: a `ModelFit` derives its gain from rho and
+    the look-alike's rho, and these tables set the gain on its own."""
+    match = SweepMatch("x", info["rho"], info["rho_lookalike"], period_rows=100.0,
+                       cycles_f1=1.0, exposure_slots=0.0, coherence_t=info["coherence_t"],
+                       n_periods=1.0)
+    fit = None if info["fit"] is None else SimpleNamespace(**info["fit"])
+    return SweepResult(match, "W", "", fit=fit)
+
+
 def _f(rho=0.0, gain=0.0, t=0.0, periods=1.0, leak=None) -> dict:
     return {"rho": rho, "gain": gain, "coherence_t": t, "n_periods": periods,
             "chroma_leak": leak}
@@ -147,18 +169,18 @@ SWEEP_CASES = [
 def test_sweep_rule_fixed_verdicts(info, expected):
     """Detection's and calibration's form of the sweep rule give the hand-computed verdict."""
     assert _sweep(info, DET) is expected  # the restatement itself is right
-    assert sweep_passes(info, DET) is expected
-    assert bool(sweep_protected([np.array([sweep_row(info, 0)])], DET)[0]) is expected
+    assert sweep_passes(_entry(info), DET) is expected
+    assert bool(sweep_protected([np.array([sweep_row(_entry(info), 0)])], DET)[0]) is expected
 
 
 def test_sweep_rule_without_exact_fit():
     """The fit off (``fit = false``): no exact-model fit decides, however good (grid fits
     still do)."""
     det = DET.replace(fit=None)
-    fit_only = _info(fit=_f(0.96875, 100.0, 40.0, 4.0, 0.0))
+    fit_only = _entry(_info(fit=_f(0.96875, 100.0, 40.0, 4.0, 0.0)))
     assert not sweep_passes(fit_only, det)
     assert not sweep_protected([np.array([sweep_row(fit_only, 0)])], det)[0]
-    grid = _info(0.875, 0.0, 40.0)
+    grid = _entry(_info(0.875, 0.0, 40.0))
     assert sweep_passes(grid, det) and sweep_protected([np.array([sweep_row(grid, 0)])], det)[0]
 
 
@@ -179,10 +201,10 @@ TONE_CASES = [
                          ids=_ids(TONE_CASES))
 def test_tone_rule_fixed_verdicts(fit, expected):
     """`tone_fit_confirms` and `tone_confirmed` give the hand-computed verdict."""
-    info = _info(fit=fit)
+    entry = _entry(_info(fit=fit))
     assert _tone(fit, DET) is expected
-    assert tone_fit_confirms([info], DET) is expected
-    assert bool(tone_confirmed([np.array([sweep_row(info, 0)])], 1, DET)[0, 0]) is expected
+    assert tone_fit_confirms([entry], DET) is expected
+    assert bool(tone_confirmed([np.array([sweep_row(entry, 0)])], 1, DET)[0, 0]) is expected
 
 
 # (name, (rho, rho_lookalike, fold_snr), expected verdict of fold_passes with DET)
@@ -202,7 +224,7 @@ def test_fold_rule_fixed_verdicts(fold, expected):
     """`fold_passes` and `fold_protected` give the hand-computed verdict."""
     rho, la, snr = fold
     assert _fold(rho, la, snr, DET) is expected
-    assert fold_passes({"rho": rho, "rho_lookalike": la, "fold_snr": snr}, DET) is expected
+    assert fold_passes(_fold_result(rho, la, snr), DET) is expected
     assert bool(fold_protected([np.array([fold], dtype=float)], DET)[0]) is expected
 
 
@@ -242,13 +264,14 @@ def test_sweep_forms_equal_the_literal_rule(sweeps, det):
     """Protected exactly when the literal rule passes one of the fits, in both forms; tone
     tracks confirmed exactly when the literal tone rule passes one."""
     expected = any(_sweep(s, det) for s in sweeps)
-    assert any(sweep_passes(s, det) for s in sweeps) is expected
-    table = np.array([sweep_row(s, candidate=0) for s in sweeps], dtype=float)
+    entries = [_entry(s) for s in sweeps]
+    assert any(sweep_passes(e, det) for e in entries) is expected
+    table = np.array([sweep_row(e, candidate=0) for e in entries], dtype=float)
     assert bool(sweep_protected([table], det)[0]) is expected
     det_on = det.replace(fit=det.fit or FitConfig())
     if det_on.tones.min_fit_gain is not None:
         confirmed = any(_tone(s["fit"], det_on) for s in sweeps)
-        assert tone_fit_confirms(sweeps, det_on) is confirmed
+        assert tone_fit_confirms(entries, det_on) is confirmed
         assert bool(tone_confirmed([table], 1, det_on)[0, 0]) is confirmed
 
 
@@ -260,7 +283,7 @@ def test_fold_forms_equal_the_literal_rule(folds, min_rho, min_snr, margin):
     """`fold_passes` and `fold_protected` agree with the literal fold rule on every fit."""
     det = DetectorConfig(fold=FoldConfig(min_rho=min_rho, min_snr=min_snr, min_margin=margin))
     expected = any(_fold(r, a, s, det) for r, a, s in folds)
-    assert any(fold_passes({"rho": r, "rho_lookalike": a, "fold_snr": s}, det)
+    assert any(fold_passes(_fold_result(r, a, s), det)
                for r, a, s in folds) is expected
     assert bool(fold_protected([np.array(folds, dtype=float)], det)[0]) is expected
 
@@ -273,8 +296,8 @@ def test_unmeasured_leak_never_takes_the_rgb_path():
                          sweep=SweepConfig(min_rho=1.0))
     fit = {"rho": 0.9, "gain": 5.0, "coherence_t": 10.0, "n_periods": 1.0, "chroma_leak": None}
     info = {"rho": 0.0, "rho_lookalike": 0.0, "coherence_t": 10.0, "fit": fit}
-    assert not sweep_passes(info, det)
-    assert not sweep_protected([np.array([sweep_row(info)])], det)[0]
+    assert not sweep_passes(_entry(info), det)
+    assert not sweep_protected([np.array([sweep_row(_entry(info))])], det)[0]
     measured = {**info, "fit": {**fit, "chroma_leak": 0.5}}
-    assert sweep_passes(measured, det)
-    assert sweep_protected([np.array([sweep_row(measured)])], det)[0]
+    assert sweep_passes(_entry(measured), det)
+    assert sweep_protected([np.array([sweep_row(_entry(measured))])], det)[0]

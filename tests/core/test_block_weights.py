@@ -154,6 +154,14 @@ def test_without_colour_planes_no_leak_is_claimed(rng):
     assert fit is not None and fit.chroma_leak is None
 
 
+def _passes_with(fit_passes):
+    """`rules.fit_passes` over a dict of the numbers it reads (a `ModelFit` derives its gain
+    from the two rhos; these cases set it on its own)."""
+    from types import SimpleNamespace
+
+    return lambda fit, det: fit_passes(SimpleNamespace(**fit), det)
+
+
 def test_colour_verified_path_of_fit_passes():
     from lishield_guard.config import DetectorConfig
     from lishield_guard.detector.rules import fit_passes
@@ -162,6 +170,7 @@ def test_colour_verified_path_of_fit_passes():
         "fit.min_rho": 0.95, "fit.min_gain": 8.0, "fit.min_rho_rgb": 0.85,
         "fit.min_gain_rgb": 1.0, "fit.max_leak_rgb": 0.3, "sweep.min_coherence": 3.0})
     fit = {"rho": 0.88, "gain": 2.0, "coherence_t": 10.0, "chroma_leak": 0.1, "n_periods": 1.5}
+    fit_passes = _passes_with(fit_passes)
     assert fit_passes(fit, det)
     assert not fit_passes({**fit, "chroma_leak": 0.5}, det)  # colour says grey scene
     assert not fit_passes({**fit, "chroma_leak": None}, det)  # colour not measured
@@ -182,6 +191,7 @@ def test_periodic_path_of_fit_passes():
         "fit.min_gain_periodic": 2.0, "sweep.min_coherence": 3.0})
     fit = {"rho": 0.9, "gain": 3.0, "coherence_t": 10.0, "chroma_leak": None,
            "n_periods": PERIODIC_MIN_PERIODS}
+    fit_passes = _passes_with(fit_passes)
     assert fit_passes(fit, det)
     assert not fit_passes({**fit, "n_periods": PERIODIC_MIN_PERIODS - 0.01}, det)
     assert not fit_passes({**fit, "gain": 1.9}, det)

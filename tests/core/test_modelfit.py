@@ -229,10 +229,10 @@ def test_fit_decides_where_the_grid_cannot(rng):
     assert N_ROWS / period > 7
     fits = _axis_sweeps({"L": pa}, [("p", spec)], det, [2 * period])[spec.name]
     assert scale_range_cpr_per_hz(det)[0] > 0
-    (info,) = fits
-    assert not grid_passes(info, det)
-    assert fit_passes(info["fit"], det), info["fit"]
-    assert info["fit"]["period_rows"] == pytest.approx(period, rel=0.01)
+    (entry,) = fits
+    assert not grid_passes(entry, det)
+    assert fit_passes(entry.fit, det), entry.fit
+    assert entry.fit.period_rows == pytest.approx(period, rel=0.01)
 
 
 @pytest.mark.parametrize("name, f_b, rate, exposure_s, c1_start", [

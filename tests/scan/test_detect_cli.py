@@ -140,3 +140,26 @@ def test_plot_reads_evidence_defensively(tmp_path):
     object.__setattr__(und, "undetermined", "too small")
     if getattr(und, "status", None) == "undetermined":
         assert verdict_title(und).startswith("UNDETERMINED")
+
+
+def test_the_figure_states_the_thresholds_of_each_path():
+    """The lines under the figure hold each number against the configured threshold of the
+    path that decided (read by dotted name; an optional path that is off says so)."""
+    from lishield_guard.config import default_config
+    from lishield_guard.plot import _threshold_lines
+
+    det = default_config().detector
+    v = Verdict(True, "p", 1, 1, evidence={}, profile="default")
+    fit = {"rho": 0.883, "rho_lookalike": 0.718, "gain": 1.19, "coherence_t": 20.9,
+           "n_periods": 0.87, "chroma_leak": 0.28}
+    text = "\n".join(_threshold_lines("exact capture-model fit", fit, det, v))
+    assert "[pass] correlation rho 0.883   (needs >= 0.85; colour-verified path)" in text
+    assert "(needs >= 1); look-alike rho 0.718" in text
+    assert "t = 20.9   (needs >= 3)" in text and "colour path needs <= 0.3" in text
+    off = det.with_values({"fit.max_leak_rgb": None, "fit.min_gain_periodic": None})
+    text = "\n".join(_threshold_lines("exact capture-model fit", {**fit, "n_periods": 3.0},
+                                      off, v))
+    assert "(needs >= 0.9; general path)" in text and "colour path off" in text
+    grid = {"rho": 0.75, "rho_lookalike": 0.4, "coherence_t": 12.0}
+    assert "grid rho 0.750  (needs >= 0.7)" in _threshold_lines("period-sweep grid fit", grid,
+                                                                 det, v)[0]
