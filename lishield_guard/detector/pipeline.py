@@ -52,6 +52,7 @@ __all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decid
 MIN_ROWS = 64  # shorter profiles cannot hold two cycles of the lowest tone at any scale
 MIN_ACROSS = 64  # fewer pixels across the lines cannot fill 8 column blocks of 8 pixels: the
 #                  column-coherence tests that tell LED stripes from texture have nothing to use
+MAX_CANDIDATES = 6  # (axis, spec) candidates the verdict's evidence lists
 FIT_STARTS = 3  # best grid periods per spec channel refined with the exact capture model
 FIT_SUB_BLOCKS = 4  # sweep and fit weight n_col_blocks x this many column sub-blocks
 MIN_SLOTS_IN_FRAME = 2.0  # sweep/fit periods must leave two slots (two tones) in the frame:
@@ -691,10 +692,12 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
                        skipped=tuple(skipped), timings_ms=timings, profile="default",
                        undetermined=why)
     axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
+    # the evidence lists MAX_CANDIDATES: most tones first, then those the search looked at
     tried = sorted(({"axis": a, "policy": p, **c.to_dict()} for a, p, c in candidates),
-                   key=lambda d: (-d["n_matched"], -d["purity"]))
+                   key=lambda d: (-d["n_matched"], d["stage"] == "first stage", -d["purity"]))
     evidence = {"reason": m.reason, "axis": axis, "stage": m.stage, "best": m.to_dict(),
-                "candidates": tried[:6], "orientation_exif": orientation, "format": fmt}
+                "candidates": tried[:MAX_CANDIDATES], "orientation_exif": orientation,
+                "format": fmt}
     # matches / required count the deciding stage's evidence: tones for the tone tracks, one
     # pattern fit of one needed for folding, the sweep and the exact fit
     pattern = m.protected and m.stage != "tones"

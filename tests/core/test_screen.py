@@ -208,3 +208,22 @@ def test_every_usable_sub_block_takes_part_in_the_halves_test(rng):
     r = screen_plane(pa, false_prob=0.01, min_frames=2, partial_false_prob=1e-3,
                      partial_min_frames=3)
     assert r.via == "right half" and r.part_frames >= 3, r
+
+
+def test_the_evidence_lists_searched_candidates_before_cleared_ones():
+    """With more (axis, spec) candidates than the evidence lists, the ones the pattern search
+    looked at are kept ahead of those the first stage cleared (same tone count): what
+    evaluate.py's "stage reached" reads from the verdict."""
+    from lishield_guard.config import default_config
+    from lishield_guard.detector.pipeline import MAX_CANDIDATES, _verdict
+    from lishield_guard.detector.tones import SpecMatch
+
+    def cand(axis, name, stage):
+        return (axis, "p", SpecMatch(name, 0.0, {}, {}, 0, 2, 0.0, 0, False, "r", stage=stage))
+
+    cands = [cand("rows", f"s{i}", "first stage") for i in range(MAX_CANDIDATES)]
+    cands += [cand("columns", "s0", "exact fit"), cand("columns", "s1", "sweep")]
+    v = _verdict(cands, default_config(), [], {}, 1, "jpeg")
+    listed = v.evidence["candidates"]
+    assert len(listed) == MAX_CANDIDATES
+    assert [c["stage"] for c in listed[:2]] == ["exact fit", "sweep"]
