@@ -483,15 +483,12 @@ def _candidate_index(axis: str, spec: str, config: AppConfig) -> int:
 def sweep_row(entry: SweepResult, candidate: int = -1) -> list[float]:
     """A `sweep_fits` entry as a row of `SWEEP_COLUMNS` (zeros where no exact fit was made;
     ``candidate`` is its `candidate_table` column, -1 when unknown)."""
+    grid = [entry.rho, entry.rho_lookalike, entry.coherence_t]
     fit = entry.fit
     if fit is None:
-        fit_cols = [0.0, 0.0, 0.0, math.inf, 0.0]
-    else:
-        leak = math.inf if fit.chroma_leak is None else fit.chroma_leak
-        fit_cols = [fit.rho, fit.gain, fit.coherence_t, leak, fit.n_periods]
-    f_rho, f_gain, f_t, leak, f_periods = fit_cols
-    return [entry.rho, entry.rho_lookalike, entry.coherence_t, f_rho, f_gain, f_t, leak,
-            float(candidate), f_periods]
+        return [*grid, 0.0, 0.0, 0.0, math.inf, float(candidate), 0.0]
+    leak = math.inf if fit.chroma_leak is None else fit.chroma_leak
+    return [*grid, fit.rho, fit.gain, fit.coherence_t, leak, float(candidate), fit.n_periods]
 
 
 def tone_confirmed(sweeps: list[np.ndarray], n_candidates: int, det: DetectorConfig

@@ -348,9 +348,16 @@ class FitConfig(_Group):
 STAGES: dict[str, type] = {"profiles": ProfileConfig, "screen": ScreenConfig,
                            "tones": ToneConfig, "fold": FoldConfig, "sweep": SweepConfig,
                            "fit": FitConfig, "paper": PaperConfig}
-OPTIONAL_STAGES = ("screen", "fold", "sweep", "fit")  # None (``false`` in TOML): stage off
-OPTIONAL_FIELDS = {("screen", "partial_false_prob"), ("tones", "min_fit_gain"),
-                   ("fit", "max_leak_rgb"), ("fit", "min_gain_periodic")}
+
+
+def _optional(fields) -> set[str]:
+    """Names of the dataclass ``fields`` whose type admits None (None: off)."""
+    return {f.name for f in fields if "None" in str(f.type)}
+
+
+# (stage, field) pairs that None (``false`` in TOML) turns off
+OPTIONAL_FIELDS = {(name, f) for name, cls in STAGES.items()
+                   for f in _optional(dataclasses.fields(cls))}
 
 
 @dataclass(frozen=True)
@@ -423,6 +430,9 @@ class DetectorConfig:
         return out
 
 
+OPTIONAL_STAGES = _optional(dataclasses.fields(DetectorConfig))  # stages that can be off
+
+
 def _group_from_table(cls: type, table: dict, name: str):
     """One stage's settings from its TOML table (``false`` for an optional field: None)."""
     known = {f.name for f in dataclasses.fields(cls)}
@@ -462,11 +472,15 @@ LEGACY_KEYS: dict[str, str] = {
 }
 
 
+def _is_flat(det: dict) -> bool:
+    """Whether a ``[detector]`` table uses the flat keys of an earlier version."""
+    return any(k in LEGACY_KEYS or k in ("period_sweep", "model_fit") for k in det)
+
+
 def _ungroup_legacy(det: dict, source: str) -> dict:
     """A flat ``[detector]`` table of an earlier version as grouped tables; the old ways of
-    saying "off" (``period_sweep = false``, ``model_fit = false``, ``screen_false_prob``
-    left out, ``tone_min_fit_gain = -inf``, ``fit_max_leak_rgb = 0``,
-    ``fit_min_gain_periodic = inf``) become ``false``."""
+    saying "off" (``period_sweep = false``, ``model_fit = false``, ``tone_min_fit_gain =
+    -inf``, ``fit_max_leak_rgb = 0``, ``fit_min_gain_periodic = inf``) become ``false``."""
     out: dict[str, Any] = {}
     for key, value in det.items():
         if key in LEGACY_KEYS:
@@ -607,7 +621,7 @@ def _detector_from_table(det: Any, source: str) -> DetectorConfig:
     optional field set to ``false`` is off) or the flat keys of an earlier version."""
     if not isinstance(det, dict):
         raise ConfigError(f"{source}: [detector] must be a table, got {det!r}")
-    if any(k in LEGACY_KEYS or k in ("period_sweep", "model_fit") for k in det):
+    if _is_flat(det):
         det = _ungroup_legacy(det, source)
     known = {"profile", *STAGES}
     bad = set(det) - known
@@ -673,7 +687,7 @@ def merge_tables(base: dict, override: dict) -> dict:
             out[key] = {**out[key], **value}
         elif key == "detector" and isinstance(value, dict) \
                 and isinstance(out.get(key), dict):
-            if any(k in LEGACY_KEYS or k in ("period_sweep", "model_fit") for k in value):
+            if _is_flat(value):
                 value = _ungroup_legacy(value, "config")
             merged = dict(out[key])
             for k, v in value.items():
