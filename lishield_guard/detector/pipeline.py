@@ -42,6 +42,7 @@ from lishield_guard.detector.screen import jpeg_grid_cpr, screen_plane
 from lishield_guard.detector.sweep import sweep_match
 from lishield_guard.detector.tones import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
+from lishield_guard.detector.usable import unusable_reason
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.verdict import Verdict
 
@@ -710,6 +711,16 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
 
 def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
     """`_run_stages`, lazily, on the planes of a decoded image analysed as they are needed."""
+    det = config.detector
+    with timer("profile_luma"):  # a frame the test cannot run on is undetermined, never clean
+        why = unusable_reason(decoded.luma, n_col_blocks=det.profiles.n_col_blocks,
+                              axes=(0, 1) if det.profiles.orientations == "both" else (0,),
+                              min_lines=MIN_ROWS, min_across=MIN_ACROSS,
+                              colour_planes=decoded.colour_planes if decoded.is_color else None)
+    if why is not None:
+        return Verdict(False, None, 0, det.tones.min_tones,
+                       evidence={"reason": why, "candidates": []}, timings_ms=timer.ms,
+                       profile="default", undetermined=why)
     skipped: list[str] = []
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
