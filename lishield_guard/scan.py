@@ -62,9 +62,12 @@ TAR_TAIL_MAX_BYTES = 64 * 1024 * 1024  # decompressed bytes after a tar's end re
 #: ``undetermined_reason``, ``protected`` null) or "error" (``error`` and ``code`` say why).
 #: ``path_escaped`` is true when ``path`` was escaped to be valid one-line UTF-8: then ``\\``
 #: stands for a backslash and ``\xNN`` for a byte that is a control character or not UTF-8.
+#: ``reason`` is the verdict's reason in words and ``skipped`` its skipped-work notes (a list;
+#: joined by "; " in CSV); both null for an error. They come last so that a CSV written
+#: before them keeps its columns on resume.
 RECORD_FIELDS = ("path", "status", "protected", "policy", "matches", "required", "score",
                  "error", "code", "undetermined_reason", "size_bytes", "elapsed_ms", "key",
-                 "path_escaped")
+                 "path_escaped", "reason", "skipped")
 STATUSES = ("protected", "clean", "undetermined", "error")
 
 # Stable codes of the scanner's own skip reasons (detector errors keep their LishieldError.code).
@@ -577,9 +580,10 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
     Returns
     -------
     fields : dict
-        ``status``, ``protected`` (null when undetermined), ``policy``, ``matches``,
-        ``required``, ``score``, ``error``, ``code``, ``undetermined_reason`` and
-        ``elapsed_ms`` (wall time of the detection, in milliseconds).
+        ``status``, ``protected`` (null unless clean or protected), ``policy``, ``matches``,
+        ``required``, ``score``, ``error``, ``code``, ``undetermined_reason``, ``reason`` (the
+        verdict's reason in words), ``skipped`` (work not done, and why) and ``elapsed_ms``
+        (wall time of the detection, in milliseconds).
     """
     from lishield_guard.detector import detect
 
@@ -588,14 +592,14 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             v = detect(source, config)
-        status = v.status
-        out: dict[str, Any] = {"status": status,
-                               "protected": None if status == "undetermined"
-                               else bool(v.protected),
+        reason = v.evidence.get("reason") if isinstance(v.evidence, dict) else None
+        out: dict[str, Any] = {"status": v.status, "protected": v.protected_or_none,
                                "policy": v.policy,
                                "matches": int(v.matches), "required": int(v.required),
                                "score": round(float(v.score), 6), "error": None, "code": None,
-                               "undetermined_reason": v.undetermined}
+                               "undetermined_reason": v.undetermined,
+                               "reason": _printable(str(reason or v.undetermined or "")) or None,
+                               "skipped": [_printable(str(s)) for s in v.skipped]}
     except LishieldError as exc:
         out = _error_fields(str(exc), exc.code)
     except Exception as exc:  # noqa: BLE001 - one bad file never stops a scan
@@ -607,7 +611,7 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
 def _error_fields(message: str, code: str) -> dict[str, Any]:
     return {"status": "error", "protected": None, "policy": None, "matches": None,
             "required": None, "score": None, "error": _printable(message), "code": code,
-            "undetermined_reason": None}
+            "undetermined_reason": None, "reason": None, "skipped": None}
 
 
 def build_record(item: ScanItem, fields: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -849,11 +853,19 @@ def format_record(record: dict[str, Any], fmt: str) -> str:
     if fmt == "jsonl":
         return json.dumps(record, ensure_ascii=False, allow_nan=False) + "\n"
     buf = io.StringIO()
-    row = ["" if record.get(k) is None else
-           (str(record[k]).lower() if isinstance(record[k], bool) else record[k])
-           for k in RECORD_FIELDS]
+    row = [_csv_cell(record.get(k)) for k in RECORD_FIELDS]
     csv.writer(buf, lineterminator="\n").writerow(row)
     return buf.getvalue()
+
+
+def _csv_cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, list | tuple):
+        return "; ".join(map(str, value))
+    return value
 
 
 def read_done_keys(path: str | Path, fmt: str, *, repair: bool = True) -> set[str]:

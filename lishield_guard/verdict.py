@@ -42,8 +42,10 @@ class Verdict:
 
     Attributes
     ----------
-    protected : bool
-        True when a policy's barcode was found.
+    protected : bool or None
+        True when a policy's barcode was found, False when the image was analysed and none
+        was; None whenever the status is neither (undetermined), whatever the constructor was
+        given.
     policy : str or None
         Id of the matched policy (None when not protected).
     matches : int
@@ -65,10 +67,10 @@ class Verdict:
         Evidence strength in [0, 1]; compared against the configured threshold.
     undetermined : str or None
         Why the detector could not look at this image (None when it did). An undetermined
-        verdict has ``protected=False`` but is not clean: see `status`.
+        verdict has ``protected=None`` and is not clean: see `status`.
     """
 
-    protected: bool
+    protected: bool | None
     policy: str | None
     matches: int
     required: int
@@ -79,6 +81,13 @@ class Verdict:
     score: float = 0.0
     undetermined: str | None = None
 
+    def __post_init__(self) -> None:
+        # derived, so that no constructor can make an undetermined verdict read "not protected"
+        if self.undetermined is not None:
+            object.__setattr__(self, "protected", None)
+        elif self.protected is not None:
+            object.__setattr__(self, "protected", bool(self.protected))
+
     @property
     def status(self) -> str:
         """``"undetermined"``, ``"protected"`` or ``"clean"`` (one of `STATUSES`)."""
@@ -86,11 +95,18 @@ class Verdict:
             return "undetermined"
         return "protected" if self.protected else "clean"
 
+    @property
+    def protected_or_none(self) -> bool | None:
+        """`protected` as every interface reports it: None unless the status is clean or
+        protected (also for a verdict whose ``undetermined`` was set after construction)."""
+        status = self.status
+        return None if status not in ("clean", "protected") else status == "protected"
+
     def to_dict(self, *, explain: bool = True) -> dict:
         """JSON-ready dict; ``explain=False`` leaves out the bulky evidence."""
         d = {
             "status": self.status,
-            "protected": bool(self.protected),
+            "protected": self.protected_or_none,
             "policy": self.policy,
             "matches": int(self.matches),
             "required": int(self.required),

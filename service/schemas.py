@@ -32,8 +32,10 @@ class ScreenResult(BaseModel):
 
     status: Literal["protected", "clean", "undetermined"] = Field(
         description="undetermined: the detector could not look at this image (too small on "
-        "every axis, or nothing analysable); never read it as clean.")
-    protected: bool = Field(description="True only for status protected.")
+        "every axis, blank, flat or clipped, or nothing analysable); never read it as clean.")
+    protected: bool | None = Field(
+        description="true for status protected, false for status clean, null for any other "
+        "status (undetermined): null never means 'not protected'.")
     policy: str | None = Field(description="Matched policy id; null when not protected.")
     matches: int = Field(ge=0)
     required: int = Field(ge=0)

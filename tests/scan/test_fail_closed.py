@@ -47,7 +47,7 @@ def _cli(*args, timeout=SUBPROCESS_TIMEOUT_S, **kw) -> subprocess.CompletedProce
 def test_too_small_image_is_undetermined_not_clean(shape):
     v = lishield_guard.detect(png_bytes(*shape))
     assert v.status == "undetermined"
-    assert v.protected is False and "too small" in v.undetermined
+    assert v.protected is None and "too small" in v.undetermined
     d = v.to_dict()
     assert d["status"] == "undetermined" and d["undetermined_reason"] == v.undetermined
 

@@ -50,7 +50,7 @@ def test_too_small_image_is_undetermined_over_http(client):
     r = client.post("/v1/screen", content=_png(40, 40))
     assert r.status_code == 200
     body = r.json()
-    assert body["status"] == "undetermined" and body["protected"] is False
+    assert body["status"] == "undetermined" and body["protected"] is None
     assert "too small" in body["undetermined_reason"]
     assert 'lishield_verdicts_total{policy="undetermined"}' in client.get("/metrics").text
 
