@@ -307,7 +307,7 @@ def download(pkg: Package, cache_dir: Path, *, offline: bool) -> Path:
         return hit
     if offline:
         raise FileNotFoundError(f"{pkg.source}:{pkg.name} is not in the cache and --offline")
-    folder = cache_dir / "cache" / pkg.source
+    folder = (cache_dir / "cache" / pkg.source).resolve()  # the download runs inside it
     folder.mkdir(parents=True, exist_ok=True)
     if pkg.source == "debian":
         tries = [["apt-get", "download", f"{pkg.name}={pkg.version}"],
