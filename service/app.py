@@ -98,8 +98,7 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
         one_thread_per_worker()  # detections run side by side in threads: one BLAS thread each
         if settings.warmup:
             loop = asyncio.get_running_loop()
-            await loop.run_in_executor(pool.executor, lishield_guard.detect, _warmup_image(),
-                                       config)
+            await loop.run_in_executor(None, pool.warmup, _warmup_image())
         state.ready = True
         try:
             yield

@@ -13,17 +13,20 @@ from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.datastructures import FormData, UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from lishield_guard import AppConfig, PayloadTooLargeError, Verdict
 from service.errors import ServiceError
 from service.metrics import Metrics
 from service.settings import ServiceSettings
+from service.workers import DetectionAbandoned, Job, WorkerProcesses
 
 __all__ = ["BodyBudget", "DetectFn", "DetectPool", "ServiceState", "get_service", "read_body",
            "read_form", "read_image", "release_body", "require_metrics_token", "require_token"]
 
 DetectFn = Callable[[bytes, AppConfig], Verdict]
 MULTIPART = "multipart/form-data"
+DISCONNECT_POLL_S = 0.25  # how often a waiting detection checks that its client is still there
 
 
 class DetectPool:
@@ -43,17 +46,25 @@ class DetectPool:
 
     Notes
     -----
-    A detection that times out keeps its admission slot until its thread really finishes, so
-    timed-out work can never push more than ``max_concurrency + max_queue`` detections into the
-    pool.
+    With ``detect_isolation="process"`` (the default) each pool thread hands its detection to
+    a worker process (`service.workers`); a detection the service stops waiting for (504
+    ``timeout``, or the client went away) is ended by killing that process, so it frees its CPU
+    and its admission slot at once and ``lishield_detections_in_flight`` falls. With
+    ``"thread"`` (in-process ``detect_fn`` closures, tests) an abandoned detection that already
+    runs keeps its slot until its thread finishes; a queued one is cancelled either way. So
+    abandoned work can never push more than ``max_concurrency + max_queue`` detections into
+    the pool.
     """
 
     def __init__(self, detect_fn: DetectFn, config: AppConfig, settings: ServiceSettings,
                  metrics: Metrics) -> None:
         self.executor = ThreadPoolExecutor(max_workers=settings.max_concurrency,
                                            thread_name_prefix="lishield-detect")
+        self.workers = (WorkerProcesses(detect_fn, config, settings.max_concurrency)
+                        if settings.detect_isolation == "process" else None)
         self._detect_fn = detect_fn
         self._config = config
+        self._n_threads = settings.max_concurrency
         self._capacity = settings.max_concurrency + settings.max_queue
         self._timeout_s = settings.detect_timeout_s
         self._retry_after_s = settings.retry_after_s
@@ -78,30 +89,72 @@ class DetectPool:
             self._admitted -= 1
         self._metrics.detections_in_flight.dec()
 
-    async def detect(self, data: bytes) -> Verdict:
-        """Detect in a worker thread; 503 ``overloaded`` when full, 504 ``timeout`` when slow."""
+    def _run(self, data: bytes, job: Job) -> Verdict:
+        if self.workers is not None:
+            return self.workers.run(data, job)
+        if job.abandoned:
+            raise DetectionAbandoned("abandoned before it started")
+        return self._detect_fn(data, self._config)
+
+    def warmup(self, data: object) -> None:
+        """Run one detection on ``data`` in every worker (blocking): the first request does
+        not pay for starting a process or for the detector's first-call costs."""
+        if self.workers is None:
+            import lishield_guard
+
+            lishield_guard.detect(data, self._config)
+            return
+        futs = [self.executor.submit(self.workers.run, data) for _ in range(self._n_threads)]
+        for f in futs:
+            f.result()
+
+    async def detect(self, data: bytes, *, request: Request | None = None) -> Verdict:
+        """Detect in a worker; 503 ``overloaded`` when full, 504 ``timeout`` when slow.
+
+        With ``request``, a client that goes away while its detection waits or runs ends the
+        detection (checked every `DISCONNECT_POLL_S`) and raises ``ClientDisconnect``.
+        """
         with self._lock:
             if self._admitted >= self._capacity:
                 raise self.overloaded()
             self._admitted += 1
         self._metrics.detections_in_flight.inc()
+        job = Job()
         try:
-            fut = self.executor.submit(self._detect_fn, data, self._config)
+            fut = self.executor.submit(self._run, data, job)
         except BaseException:
             self._release()
             raise
         fut.add_done_callback(self._release)
+        waiter = asyncio.wrap_future(fut)
         try:
-            return await asyncio.wait_for(asyncio.wrap_future(fut), self._timeout_s)
+            async with asyncio.timeout(self._timeout_s):
+                while not waiter.done():
+                    await asyncio.wait({waiter}, timeout=DISCONNECT_POLL_S)
+                    if (not waiter.done() and request is not None
+                            and await request.is_disconnected()):
+                        raise ClientDisconnect()
+            return waiter.result()
         except TimeoutError:
-            fut.cancel()
+            self._abandon(fut, job, waiter)
             self._metrics.timeouts.inc()
             raise ServiceError(504, "timeout", f"detection exceeded detect_timeout_s="
                                f"{self._timeout_s}") from None
+        except (ClientDisconnect, asyncio.CancelledError):
+            self._abandon(fut, job, waiter)
+            raise
+
+    @staticmethod
+    def _abandon(fut: Future, job: Job, waiter: asyncio.Future) -> None:
+        fut.cancel()  # a queued detection never starts
+        job.abandon()  # a running one loses its process
+        waiter.cancel()
 
     def shutdown(self) -> None:
-        """Stop accepting work; queued detections are cancelled."""
+        """Stop accepting work; queued detections are cancelled, worker processes ended."""
         self.executor.shutdown(wait=False, cancel_futures=True)
+        if self.workers is not None:
+            self.workers.close()
 
 
 class BodyBudget:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -54,6 +55,11 @@ class ServiceSettings(BaseSettings):
         Detections allowed to wait for a thread; beyond, requests get 503 ``overloaded``.
     detect_timeout_s : float
         Budget of one detection including its queue wait, in seconds; beyond, 504 ``timeout``.
+    detect_isolation : {"process", "thread"}
+        Where detections run: ``"process"`` (default) in worker processes that are ended when
+        a detection times out or its client leaves, so abandoned work stops at once;
+        ``"thread"`` in the pool's threads (``detect_fn`` closures; abandoned work then runs
+        to its end).
     retry_after_s : int
         ``Retry-After`` sent with 503 ``overloaded``, in seconds.
     warmup : bool
@@ -78,6 +84,7 @@ class ServiceSettings(BaseSettings):
     max_concurrency: int = Field(default_factory=_default_concurrency, ge=1)
     max_queue: int = Field(default=16, ge=0)
     detect_timeout_s: float = Field(default=10.0, gt=0)
+    detect_isolation: Literal["process", "thread"] = "process"
     retry_after_s: int = Field(default=1, ge=0)
     warmup: bool = True
     log_level: str = "INFO"

@@ -114,7 +114,7 @@ async def review(request: Request, svc: ServiceState = Depends(get_service)) -> 
     from lishield_guard.plot import verdict_title
 
     data = await read_image(request, svc.settings)
-    verdict = await svc.pool.detect(data)
+    verdict = await svc.pool.detect(data, request=request)
     _record(request, verdict)
     svc.metrics.verdicts.labels(verdict.policy or "none").inc()
     figure, error = None, None
@@ -139,7 +139,7 @@ async def screen_plot(request: Request, svc: ServiceState = Depends(get_service)
     and ``X-Lishield-Policy`` (the matched policy, or empty).
     """
     data = await read_image(request, svc.settings)
-    verdict = await svc.pool.detect(data)
+    verdict = await svc.pool.detect(data, request=request)
     _record(request, verdict)
     svc.metrics.verdicts.labels(verdict.policy or "none").inc()
     png = await _figure(svc, data, verdict)

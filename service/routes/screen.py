@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query, Request
 from starlette.datastructures import UploadFile
+from starlette.requests import ClientDisconnect
 
 from lishield_guard import Verdict
 from service.deps import (
@@ -75,7 +76,7 @@ async def screen(request: Request, explain: bool = _EXPLAIN,
     """
     try:
         data = await read_image(request, svc.settings)
-        verdict = await svc.pool.detect(data)
+        verdict = await svc.pool.detect(data, request=request)
     finally:
         release_body(request)
     return _result(request, svc, verdict, explain)
@@ -110,8 +111,11 @@ async def screen_batch(request: Request, explain: bool = _EXPLAIN,
         for i, part in enumerate(parts):
             entry = BatchEntry(index=i, filename=part.filename, status=200)
             try:
-                verdict = await svc.pool.detect(await upload_bytes(part, s.max_upload_bytes))
+                verdict = await svc.pool.detect(await upload_bytes(part, s.max_upload_bytes),
+                                              request=request)
                 entry.result = _result(request, svc, verdict, explain, record=False)
+            except ClientDisconnect:
+                raise  # the client left: the remaining files are not screened
             except Exception as exc:  # noqa: BLE001 - typed errors become per-file entries
                 status, code, message, _ = describe(exc)
                 if code == "internal_error":

@@ -147,7 +147,8 @@ def test_overload_gives_503_with_retry_after(demo_pair):
         release.wait(20)
         return lishield_guard.detect(data, config)
 
-    s = make_settings(max_concurrency=1, max_queue=0, retry_after_s=2, warmup=False)
+    s = make_settings(max_concurrency=1, max_queue=0, retry_after_s=2, warmup=False,
+                      detect_isolation="thread")  # a closure: runs in the server's threads
     with live_server(s, detect_fn=slow_detect) as srv, srv.client() as c1, srv.client() as c2:
         first = {}
         t = threading.Thread(target=lambda: first.setdefault(
@@ -177,7 +178,7 @@ def test_timeout_gives_504(demo_pair):
         release.wait(10)
         return lishield_guard.detect(data, config)
 
-    s = make_settings(detect_timeout_s=0.2, warmup=False)
+    s = make_settings(detect_timeout_s=0.2, warmup=False, detect_isolation="thread")
     with live_server(s, detect_fn=stuck_detect) as srv, srv.client() as c:
         _err(c.post("/v1/screen", content=demo_pair[1].read_bytes()), 504, "timeout")
         release.set()
