@@ -21,6 +21,7 @@ from PIL import Image, ImageFile, UnidentifiedImageError
 from lishield_guard.config import Limits
 from lishield_guard.errors import (
     CorruptImageError,
+    EmptyImageError,
     ImageTooLargeError,
     InvalidImageError,
     PayloadTooLargeError,
@@ -390,7 +391,7 @@ def decode(source, *, limits: Limits | None = None, want_rgb: bool = False, fast
     if len(data) > limits.max_bytes:
         raise PayloadTooLargeError(f"input has {len(data)} bytes > max_bytes={limits.max_bytes}")
     if not data:
-        raise UnsupportedImageError("empty input: no image bytes")
+        raise EmptyImageError("empty input: no image bytes")
     img = _open(data)
     n_cols, n_rows = img.size
     if n_rows * n_cols > limits.max_pixels:

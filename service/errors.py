@@ -12,13 +12,16 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
 from lishield_guard.errors import (
+    ERROR_CODES,
     ConfigError,
+    EmptyImageError,
     ImageDecodeError,
     ImageTooLargeError,
     InvalidImageError,
     LishieldError,
     PayloadTooLargeError,
     UnsupportedImageError,
+    error_code,
 )
 
 __all__ = ["CLIENT_CLOSED_REQUEST", "STATUS_BY_ERROR", "ErrorCode", "ServiceError", "describe",
@@ -26,15 +29,14 @@ __all__ = ["CLIENT_CLOSED_REQUEST", "STATUS_BY_ERROR", "ErrorCode", "ServiceErro
 
 log = logging.getLogger("lishield_guard.service")
 
-# Core error -> HTTP status; looked up along the exception's MRO, most specific first.
-# ConfigError is deliberately absent: config is loaded at startup, so one at request time is a
-# bug and becomes a 500 ``internal_error``.
+# Core error -> HTTP status, read from the one code table (`lishield_guard.errors.ERROR_CODES`);
+# looked up along the exception's MRO, most specific first. ConfigError is deliberately absent:
+# config is loaded at startup, so one at request time is a bug and becomes a 500
+# ``internal_error``.
 STATUS_BY_ERROR: dict[type[LishieldError], int] = {
-    UnsupportedImageError: 415,
-    ImageDecodeError: 422,  # CorruptImageError included
-    ImageTooLargeError: 413,
-    PayloadTooLargeError: 413,
-    InvalidImageError: 422,
+    cls: error_code(cls.code).http_statuses[0]
+    for cls in (EmptyImageError, UnsupportedImageError, ImageDecodeError, ImageTooLargeError,
+                PayloadTooLargeError, InvalidImageError)
 }
 
 _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found",
@@ -43,37 +45,10 @@ _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "
                503: "unavailable"}
 CLIENT_CLOSED_REQUEST = 499  # nginx's status for a client that went away: never sent, logged
 
-
-class ErrorCode(StrEnum):
-    """Every ``code`` an error answer can carry (the OpenAPI schema lists them as an enum)."""
-
-    # the core's typed errors (LishieldError.code)
-    unsupported_media_type = "unsupported_media_type"
-    undecodable_image = "undecodable_image"
-    invalid_image = "invalid_image"
-    image_too_large = "image_too_large"
-    payload_too_large = "payload_too_large"
-    # the service's own
-    invalid_request = "invalid_request"
-    invalid_multipart = "invalid_multipart"
-    empty_body = "empty_body"
-    too_many_files = "too_many_files"
-    unauthorized = "unauthorized"
-    overloaded = "overloaded"
-    timeout = "timeout"
-    body_timeout = "body_timeout"
-    client_disconnected = "client_disconnected"
-    not_ready = "not_ready"
-    internal_error = "internal_error"
-    # plain HTTP errors raised by the framework
-    bad_request = "bad_request"
-    forbidden = "forbidden"
-    not_found = "not_found"
-    method_not_allowed = "method_not_allowed"
-    not_acceptable = "not_acceptable"
-    too_many_requests = "too_many_requests"
-    unavailable = "unavailable"
-    http_error = "http_error"
+#: Every ``code`` an error answer can carry (the OpenAPI schema lists them as an enum): the
+#: codes of `lishield_guard.errors.ERROR_CODES` that have an HTTP status, and ``http_error``.
+ErrorCode = StrEnum("ErrorCode", [(e.code, e.code) for e in ERROR_CODES
+                                  if e.http_statuses or e.code == "http_error"])
 
 
 class ServiceError(Exception):

@@ -8,10 +8,10 @@ __all__ = ["EXIT_CODES_HELP", "ExitCode"]
 
 
 EXIT_CODES_HELP = ("Exit status: 0 every image clean (or the command succeeded); 1 at least one "
-                   "image protected (wins over errors); 2 usage error (bad arguments, config or "
-                   "input path); 3 no image protected but input errors or undetermined "
-                   "results present (images that could not be looked at), or the command "
-                   "failed.")
+                   "image protected (wins over errors); 2 usage error (bad arguments or "
+                   "config); 3 no image protected but input errors (a missing, empty or "
+                   "unreadable input) or undetermined results present (images that could not "
+                   "be looked at), or the command failed.")
 
 
 class ExitCode(IntEnum):
@@ -22,10 +22,13 @@ class ExitCode(IntEnum):
     ====  ==========  ====================================================================
     0     CLEAN       every image analysed and clean (or the command succeeded)
     1     PROTECTED   at least one image carries a policy barcode; wins over errors
-    2     USAGE       bad arguments, bad config, missing input path
-    3     ERROR       no image protected, but input errors or undetermined results are
+    2     USAGE       bad arguments, bad config (`errors.EXIT_USAGE`)
+    3     ERROR       no image protected, but input errors (a missing, empty or unreadable
+                      input: `errors.EXIT_INPUT_ERROR`) or undetermined results are
                       present (a tool that could not look never says clean), or the
                       command failed for another reason
+
+    Which error code leads to which status: `lishield_guard.errors.ERROR_CODES`.
     ====  ==========  ====================================================================
     """
 

@@ -90,35 +90,60 @@ def _describe(v, label: str, *, explain: bool) -> str:
     lines.append("  timings: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in t.items())
                  + f" (total {total:.1f} ms)")
     if explain:
-        best = ev.get("best")
-        if best:
-            sigma = best.get("sigma_cpr_per_hz") or 0.0
-            rate = best.get("row_rate_hz_if_not_resized")
-            lines.append(f"  best spec: {best.get('spec')}  scale: {sigma:.4g} cycles/row per Hz"
-                         + (f" (row rate {rate:,.0f} Hz if not resized)" if rate else ""))
-            for ch, hz in (best.get("matched_hz") or {}).items():
-                tones = ", ".join(f"{f:g} Hz ({f * sigma:.4f} c/row)" for f in hz) or "none"
-                lines.append(f"    {ch}: matched {tones}")
-            occupancy = {c: "[" + ", ".join(_num(o) for o in v) + "]"
-                         for c, v in (best.get("occupancy") or {}).items()}
-            lines.append(f"    purity {_num(best.get('purity'))}  switches "
-                         f"{best.get('switches')}  occupancy "
-                         + ", ".join(f"{c} {o}" for c, o in occupancy.items()))
-            for stage in ("fold", "sweep"):  # template fits: folded, and tiled over the frame
-                info = best.get(stage)
-                if info:
-                    lines.append(f"    {stage}: " + ", ".join(
-                        f"{k} {_num(v)}" for k, v in info.items() if k not in ("spec", "fit")))
-                if info and info.get("fit"):  # the sweep's exact-model refinement
-                    lines.append("    exact fit: " + ", ".join(
-                        f"{k} {_num(v)}" for k, v in info["fit"].items() if k != "spec"))
-            for c in ev.get("candidates", []):
-                lines.append(f"    candidate {c.get('axis')}/{c.get('spec')}: "
-                             f"{c.get('n_matched')}/{c.get('required')} ({c.get('reason')})")
+        lines += _explain_best(ev.get("best"))
+        lines += _explain_candidates(ev.get("candidates", []), reason)
         if "frequencies_hz" in ev:
             lines.append("  peak frequencies (Hz at nominal row rate): "
                          + ", ".join(f"{f:g}" for f in ev["frequencies_hz"]))
     return "\n".join(lines)
+
+
+def _explain_best(best: dict | None) -> list[str]:
+    """``--explain``'s lines on the best candidate: its scale, matched tones, occupancy and
+    pattern fits; one line when nothing was fitted (e.g. cleared by the first stage)."""
+    if not best:
+        return []
+    sigma = best.get("sigma_cpr_per_hz") or 0.0
+    if not sigma and not best.get("n_matched") and not any(best.get(k) for k in ("fold",
+                                                                                "sweep")):
+        return [f"  best spec: {best.get('spec')}  (nothing fitted: "
+                f"{best.get('stage') or 'no tones'})"]
+    rate = best.get("row_rate_hz_if_not_resized")
+    lines = [f"  best spec: {best.get('spec')}  scale: {sigma:.4g} cycles/row per Hz"
+             + (f" (row rate {rate:,.0f} Hz if not resized)" if rate else "")]
+    for ch, hz in (best.get("matched_hz") or {}).items():
+        tones = ", ".join(f"{f:g} Hz ({f * sigma:.4f} c/row)" for f in hz) or "none"
+        lines.append(f"    {ch}: matched {tones}")
+    occupancy = {c: "[" + ", ".join(_num(o) for o in v) + "]"
+                 for c, v in (best.get("occupancy") or {}).items()}
+    line = f"    purity {_num(best.get('purity'))}  switches {best.get('switches')}"
+    if occupancy:
+        line += "  occupancy " + ", ".join(f"{c} {o}" for c, o in occupancy.items())
+    lines.append(line)
+    for stage in ("fold", "sweep"):  # template fits: folded, and tiled over the frame
+        info = best.get(stage)
+        if info:
+            lines.append(f"    {stage}: " + ", ".join(
+                f"{k} {_num(v)}" for k, v in info.items() if k not in ("spec", "fit")))
+        if info and info.get("fit"):  # the sweep's exact-model refinement
+            lines.append("    exact fit: " + ", ".join(
+                f"{k} {_num(v)}" for k, v in info["fit"].items() if k != "spec"))
+    return lines
+
+
+def _explain_candidates(candidates: list[dict], verdict_reason: str | None) -> list[str]:
+    """One line per distinct (count, reason) among the candidates, naming every candidate
+    that shares it; a reason equal to the verdict's is not repeated."""
+    groups: dict[tuple, list[str]] = {}
+    for c in candidates:
+        key = (c.get("n_matched"), c.get("required"), c.get("reason"))
+        groups.setdefault(key, []).append(f"{c.get('axis')}/{c.get('spec')}")
+    lines = []
+    for (n, req, why), names in groups.items():
+        said = "same reason as above" if why == verdict_reason else why
+        label = "candidate" if len(names) == 1 else "candidates"
+        lines.append(f"    {label} {', '.join(names)}: {n}/{req} ({said})")
+    return lines
 
 
 def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path:
@@ -140,6 +165,19 @@ def _exit_code(verdict) -> ExitCode:
     if status == "undetermined":  # fail closed: never "clean"
         return ExitCode.ERROR
     return ExitCode.CLEAN
+
+
+def _input_error(label: str, message: str, code: str) -> ExitCode:
+    """Print an input's error line with its stable code; its exit status from the one table
+    (`lishield_guard.errors.ERROR_CODES`)."""
+    from lishield_guard.errors import EXIT_INPUT_ERROR, error_code
+
+    typer.echo(f"error: {label}: {message} [{code}]", err=True)
+    try:
+        status = error_code(code).exit_status
+    except KeyError:  # pragma: no cover - a test keeps every raised code in the table
+        status = None
+    return ExitCode(status if status is not None else EXIT_INPUT_ERROR)
 
 
 def _plot_path(plot: Path, label: str, several: bool) -> Path:
@@ -171,7 +209,7 @@ def detect_command(
     """Decide whether images carry a policy barcode; print the verdict and its reason.
 
     Exit status: 0 every image clean; 1 at least one protected (wins over errors); 2 usage
-    error (bad arguments, config or path); 3 nothing protected but an unreadable or
+    error (bad arguments or config); 3 nothing protected but a missing, unreadable or
     undetermined image. Folders and archives: `lishield-guard scan`.
 
     Examples:
@@ -191,8 +229,6 @@ def detect_command(
         if image != "-" and Path(image).is_dir():
             raise _fail(f"{image!r} is a folder; scan folders and archives with "
                         f"`lishield-guard scan {image}`")
-        if image != "-" and not Path(image).is_file():
-            raise _fail(f"no such file: {image!r}")
     several = len(images) > 1
     codes: list[ExitCode] = []
     for image in images:
@@ -201,15 +237,17 @@ def detect_command(
             label = "<stdin>"
         else:
             source, label = image, image
+        if image != "-" and not Path(image).exists():  # an input error, as in scan records
+            codes.append(_input_error(label, "no such file", "not_found"))
+            continue
         try:
             verdict = detect(source, cfg)
         except LishieldError as exc:
-            typer.echo(f"error: {label}: {exc} [{exc.code}]", err=True)
-            codes.append(ExitCode.ERROR)  # an input error: never clean
+            codes.append(_input_error(label, str(exc), exc.code))  # never clean
             continue
         except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
-            typer.echo(f"error: {label}: internal error: {type(exc).__name__}: {exc}", err=True)
-            codes.append(ExitCode.ERROR)
+            codes.append(_input_error(label, f"internal error: {type(exc).__name__}: {exc}",
+                                      "internal_error"))
             continue
         if as_json:
             typer.echo(json.dumps({"path": label, **verdict.to_dict()}))

@@ -161,10 +161,7 @@ def scan_command(
     if jobs < 0:
         raise _fail(f"--jobs must be >= 1, got {jobs}")
     jobs = jobs or os.cpu_count() or 1
-    inputs = list(paths or [])
-    missing = [p for p in inputs if not os.path.exists(p)]
-    if missing:
-        raise _fail(f"no such file or folder: {missing[0]!r}")
+    inputs = list(paths or [])  # a missing path is an input error: a not_found record, exit 3
     if from_list is not None:
         inputs += _read_list(from_list)
     if not inputs:

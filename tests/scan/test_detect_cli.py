@@ -42,7 +42,7 @@ def test_bad_input_exits_2_or_3(tmp_path, run_cli):
     res = run_cli("detect", txt)  # an unreadable image: an input error, never clean
     assert res.exit_code == 3 and "unsupported_media_type" in res.output
     assert "Traceback" not in res.output
-    assert run_cli("detect", tmp_path / "missing.jpg").exit_code == 2
+    assert run_cli("detect", tmp_path / "missing.jpg").exit_code == 3  # an input error (#33 item 4)
     (img,) = write_images(tmp_path, ["a.jpg"])
     assert run_cli("detect", img, "--profile", "bogus").exit_code == 2
     assert run_cli("detect", img, "--config", tmp_path / "nope.toml").exit_code == 2

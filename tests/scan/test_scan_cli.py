@@ -53,7 +53,7 @@ def test_csv_output(tmp_path, run_cli):
 
 
 def test_usage_errors(tmp_path, run_cli):
-    assert run_cli("scan", tmp_path / "nope").exit_code == 2
+    assert run_cli("scan", tmp_path / "nope").exit_code == 3  # input error: not_found (#33)
     assert run_cli("scan", tmp_path, "--format", "xml").exit_code == 2
     assert run_cli("scan", tmp_path, "--resume").exit_code == 2
     out = tmp_path / "o.jsonl"

@@ -1,0 +1,35 @@
+"""Issue #33 item 6: the README's sample output is what `detect` prints for the demo images
+now (timings masked), so a change of the detector's numbers shows up as a failing test until
+`make docs` regenerates it."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT / "scripts") not in sys.path:
+    sys.path.insert(0, str(ROOT / "scripts"))
+
+make_docs = pytest.importorskip("make_docs")
+
+
+def test_mask_timings_and_blocks_round_trip():
+    text = "a\n<!-- x:begin (generated) -->\nold 12.5 ms\n<!-- x:end -->\nb\n"
+    assert make_docs.read_block(text, "x") == "old 12.5 ms\n"
+    new = make_docs.replace_block(text, "x", "new 3 ms\n")
+    assert make_docs.read_block(new, "x") == "new 3 ms\n" and new.endswith("b\n")
+    assert make_docs.mask_timings("decode 12.3 ms (total 1,0 ms)") == "decode N ms (total 1,N ms)"
+
+
+def test_readme_sample_output_matches_a_fresh_run(tmp_path):
+    pytest.importorskip("synth")
+    make_docs.write_demo_images(tmp_path)
+    output, status = make_docs.run_detect(tmp_path)
+    fresh = make_docs.mask_timings(make_docs.sample_block(output, status))
+    readme = make_docs.mask_timings(make_docs.read_block(make_docs.README.read_text(),
+                                                         "sample-output"))
+    assert readme == fresh, ("README's sample output differs from what `detect` prints now: "
+                             "run `make docs`")
