@@ -37,11 +37,12 @@ import itertools
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Literal
-
-import numpy as np
+from typing import TYPE_CHECKING, Literal
 
 from lishield_guard.errors import SpecError
+
+if TYPE_CHECKING:  # numpy is imported where it is used: `spec list` and --help start fast
+    import numpy as np
 
 __all__ = [
     "BarcodeSpec",
@@ -238,6 +239,8 @@ class BarcodeSpec:
             return self.order
         if self.order == "cyclic":
             return tuple(range(m))
+        import numpy as np
+
         rng = np.random.default_rng(self.order_seed)
         return tuple(int(i) for i in rng.permutation(m))
 
@@ -264,6 +267,8 @@ class BarcodeSpec:
 
     def ratio_values(self) -> np.ndarray:
         """Distinct ratio values of `ratios`, ascending, unitless."""
+        import numpy as np
+
         return np.array([r.value for r in self.ratios()], dtype=float)
 
     def to_dict(self) -> dict:
@@ -377,6 +382,8 @@ def check_spec(
             out.append(Violation("distinct_freqs", f"channel {c} repeats a tone: {fs!r}"))
     values = spec.ratio_values()
     if values.size > 1:
+        import numpy as np
+
         gaps = np.diff(values)
         i = int(np.argmin(gaps))
         if gaps[i] <= 2 * ratio_tol:

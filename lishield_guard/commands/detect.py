@@ -8,13 +8,15 @@ import json
 import sys
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from lishield_guard.commands import ExitCode
-from lishield_guard.config import AppConfig
 from lishield_guard.errors import ConfigError, LishieldError
+
+if TYPE_CHECKING:  # numpy and the config load only when a command runs (lazy start-up)
+    from lishield_guard.config import AppConfig
 
 __all__ = ["PROFILES", "Profile", "detect_command", "plot_verdict", "register", "resolve_config"]
 
