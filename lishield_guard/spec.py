@@ -45,6 +45,9 @@ if TYPE_CHECKING:  # numpy is imported where it is used: `spec list` and --help 
     import numpy as np
 
 __all__ = [
+    "EMITTER_RULES",
+    "NOTE_RULES",
+    "POLICY_RULES",
     "BarcodeSpec",
     "PRESETS",
     "Ratio",
@@ -302,8 +305,11 @@ class BarcodeSpec:
         kw = {k: d[k] for k in known - {"name", "channels"} if k in d}
         if isinstance(kw.get("order"), list):
             kw["order"] = tuple(kw["order"])
-        return cls(name=str(d["name"]), channels=tuple((c, tuple(fs)) for c, fs in chans.items()),
+        spec = cls(name=str(d["name"]), channels=tuple((c, tuple(fs)) for c, fs in chans.items()),
                    **kw)
+        # a spec read from a file is a barcode or nothing: the policy rules hold for every
+        # reader (config loader, spec show, firmware), which therefore agree
+        return require_valid(spec, rules=POLICY_RULES)
 
 
 # ---------------------------------------------------------------------- validation
@@ -329,11 +335,30 @@ class SpecReport:
 
     @property
     def ok(self) -> bool:
-        """True when no rule of severity "error" is broken."""
+        """True when no rule of severity "error" is broken: our firmware plays the spec (with
+        the ``allow`` it was checked with), and so does every other tool."""
         return not any(v.severity == "error" for v in self.violations)
+
+    @property
+    def ok_as_policy(self) -> bool:
+        """True when no `POLICY_RULES` rule is broken: the config loader accepts the spec as
+        a policy's barcode (emitter rules do not bind LEDs built by others)."""
+        return not any(v.severity == "error" and v.rule in POLICY_RULES
+                       for v in self.violations)
 
 
 RULES = ("switching", "flicker", "max_freq", "distinct_freqs", "ratios_distinct", "readout")
+#: Rules without which a spec is no barcode at all: broken, it is refused everywhere (as a
+#: policy by the config loader, by ``spec show`` and by the firmware compiler).
+POLICY_RULES = ("max_freq", "distinct_freqs")
+#: Rules of a flicker-free emitter, ours: the firmware compiler and ``spec show`` refuse a spec
+#: that breaks them unless ``allow``-ed; a *policy* may name such a spec (the detector searches
+#: emitters built by others, e.g. the paper's 200 Hz switching).
+EMITTER_RULES = ("switching", "flicker")
+#: Notes that never make a spec invalid: ``ratios_distinct`` (two of the spec's own ratios are
+#: closer than the paper's T_b window; both belong to the same spec, so the policy is still
+#: decided: 7 of the paper's 9 presets have such pairs) and ``readout``.
+NOTE_RULES = ("ratios_distinct", "readout")
 
 
 def check_spec(
@@ -353,8 +378,11 @@ def check_spec(
     - ``flicker``: lowest side lobe f_B / M > ``flicker_threshold_hz`` (Hz).
     - ``max_freq``: highest tone <= ``max_freq_hz`` (Hz).
     - ``distinct_freqs``: no tone appears twice in one channel.
-    - ``ratios_distinct``: two different ratio values differ by more than 2 * ``ratio_tol``
-      (absolute, unitless; the paper's T_b window) so a measured ratio names one of them.
+    - ``ratios_distinct`` (warning): two different ratio values differ by more than
+      2 * ``ratio_tol`` (absolute, unitless; the paper's T_b window) so a measured ratio names
+      one of them. Both ratios belong to this spec, so the policy is decided either way: a
+      note, not an error (7 of the paper's 9 presets, among them the default policy's
+      ``table2-rgb``, have such pairs at T_b = 0.05).
     - ``readout`` (warning): the pattern period M / f_B fits in ``min_readout_s`` seconds, so even
       a fast-readout frame holds every tone.
 
@@ -390,7 +418,8 @@ def check_spec(
             out.append(Violation("ratios_distinct",
                                  f"ratios {values[i]:.4f} and {values[i + 1]:.4f} differ by "
                                  f"{gaps[i]:.4f} <= 2*ratio_tol={2 * ratio_tol:g}; a measured "
-                                 f"ratio cannot be told apart"))
+                                 f"ratio cannot tell them apart (both are this spec's, so the "
+                                 f"policy is still decided)", "warning"))
     if spec.pattern_period_s > min_readout_s:
         out.append(Violation("readout", f"pattern period M/f_B={spec.pattern_period_s * 1e3:.2f} "
                                         f"ms exceeds a fast frame readout of "
@@ -415,8 +444,8 @@ def _check_allow(allow) -> frozenset[str]:
     return allow
 
 
-def require_valid(spec: BarcodeSpec, *, rules=("switching", "flicker", "max_freq",
-                                               "distinct_freqs"), allow=(), **kw) -> BarcodeSpec:
+def require_valid(spec: BarcodeSpec, *, rules=EMITTER_RULES + POLICY_RULES, allow=(),
+                  **kw) -> BarcodeSpec:
     """Raise SpecError for the first broken rule among ``rules``; return the spec otherwise.
 
     A broken rule named in ``allow`` (see `check_spec`) does not raise: it issues a

@@ -15,7 +15,7 @@ import typer
 from lishield_guard.commands import ExitCode
 from lishield_guard.commands.spec import load_spec_arg
 from lishield_guard.errors import LishieldError
-from lishield_guard.spec import SpecWarning
+from lishield_guard.spec import NOTE_RULES, SpecWarning, check_spec
 
 __all__ = ["read_seed", "register"]
 
@@ -154,6 +154,9 @@ def firmware_cmd(
         for w in caught:
             if issubclass(w.category, SpecWarning):
                 typer.echo(f"warning: {w.message}", err=True)
+        for v in check_spec(barcode).violations:  # the notes `spec show` prints too
+            if v.rule in NOTE_RULES:
+                typer.echo(f"note: spec {barcode.name!r} [{v.rule}] {v.message}", err=True)
         del seed
         if fmt is Format.bin:
             data = to_binary(seq)

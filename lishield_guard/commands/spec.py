@@ -16,6 +16,7 @@ from lishield_guard.spec import (
     DEFAULT_MAX_FREQ_HZ,
     DEFAULT_MIN_READOUT_S,
     DEFAULT_RATIO_TOL,
+    EMITTER_RULES,
     PRESETS,
     RULES,
     BarcodeSpec,
@@ -67,7 +68,8 @@ def load_spec_arg(arg: str) -> BarcodeSpec:
 
 
 def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
-                 flicker_threshold_hz: float = DEFAULT_FLICKER_THRESHOLD_HZ) -> dict[str, Any]:
+                 flicker_threshold_hz: float = DEFAULT_FLICKER_THRESHOLD_HZ,
+                 allow: tuple[str, ...] = ()) -> dict[str, Any]:
     """JSON-ready description of a spec with its ratio set and every validation rule's status.
 
     Parameters
@@ -78,6 +80,8 @@ def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
         T_b used by the ``ratios_distinct`` rule, absolute, unitless. Default 0.05.
     flicker_threshold_hz : float, optional
         Threshold of the ``flicker`` rule, in Hz. Default 80.
+    allow : tuple of str, optional
+        Emitter rules reported as warnings, as ``firmware --allow`` does.
 
     Returns
     -------
@@ -85,9 +89,12 @@ def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
         ``name``, ``description``, ``channels`` (name -> Hz list), ``f_b_hz``, ``slot_s``,
         ``pattern_period_s``, ``lowest_side_lobe_hz``, ``duty``, ``intensity_levels``,
         ``order``, ``slot_order``, ``ratios`` (value and producing pairs), ``rules`` (one entry
-        per rule with ``status`` "pass", "fail" or "warning" and a message) and ``ok``.
+        per rule with ``status`` "pass", "fail" or "warning" and a message), ``ok`` (our
+        firmware compiles it with this ``allow``: ``firmware`` exits 0 exactly then) and
+        ``ok_as_policy`` (the config loader accepts it as a policy's barcode).
     """
-    report = check_spec(spec, ratio_tol=ratio_tol, flicker_threshold_hz=flicker_threshold_hz)
+    report = check_spec(spec, ratio_tol=ratio_tol, flicker_threshold_hz=flicker_threshold_hz,
+                        allow=allow)
     by_rule: dict[str, list] = {}
     for v in report.violations:
         by_rule.setdefault(v.rule, []).append(v)
@@ -122,10 +129,8 @@ def spec_summary(spec: BarcodeSpec, *, ratio_tol: float = DEFAULT_RATIO_TOL,
                    for r in spec.ratios()],
         "rules": rules,
         "ok": report.ok,
+        "ok_as_policy": report.ok_as_policy,
     }
-
-
-EMITTER_RULES = ("flicker", "switching")  # rules on our own LEDs, not on what is detected
 
 
 def _print_summary(s: dict[str, Any]) -> None:
@@ -152,8 +157,9 @@ def _print_summary(s: dict[str, Any]) -> None:
     if emitter:
         flags = " ".join(f"--allow {e}" for e in emitter)
         typer.echo(f"  note: {', '.join(emitter)} concern(s) what our firmware emits (it compiles "
-                   f"this spec only with `firmware {flags}`); the detector searches such "
-                   f"emitters anyway (docs/policies.md)")
+                   f"this spec only with `firmware {flags}`, and `spec show {flags}` passes "
+                   f"it); a policy may still name it: the detector searches such emitters "
+                   f"(docs/policies.md)")
 
 
 def _fail(exc: Exception) -> typer.Exit:
@@ -194,12 +200,17 @@ def show_cmd(
     flicker_threshold_hz: Annotated[float, typer.Option(
         "--flicker-threshold-hz", min=0.0, help="Flicker-fusion threshold in Hz.")
     ] = DEFAULT_FLICKER_THRESHOLD_HZ,
+    allow: Annotated[list[str] | None, typer.Option(
+        "--allow", help="Report this emitter rule (switching, flicker) as a warning, as "
+                        "`firmware --allow` does. Repeatable.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
 ) -> None:
     """Show a spec's tones, switching rate, ratio set and every validation rule's status.
 
-    Exits 0 when every hard rule passes (warnings allowed), 2 when one fails. The spec file
-    format is described in docs/firmware.md.
+    Exits 0 exactly when `lishield-guard firmware` compiles the spec (with the same --allow),
+    2 otherwise; ratios_distinct and readout are notes that never fail a spec. A spec that
+    breaks only an emitter rule (switching, flicker) is still accepted as a policy by the
+    config loader. The spec file format is described in docs/firmware.md.
 
     Examples:
       lishield-guard spec show table1-seq1
@@ -207,7 +218,7 @@ def show_cmd(
     """
     try:
         s = spec_summary(load_spec_arg(spec), ratio_tol=ratio_tol,
-                         flicker_threshold_hz=flicker_threshold_hz)
+                         flicker_threshold_hz=flicker_threshold_hz, allow=tuple(allow or ()))
     except LishieldError as exc:
         raise _fail(exc) from None
     if as_json:
