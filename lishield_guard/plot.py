@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["plot_verdict", "verdict_figure", "verdict_png", "verdict_title"]
+__all__ = ["figure_caption", "plot_verdict", "verdict_figure", "verdict_png", "verdict_title"]
 
 CHANNEL_COLOURS = {"W": "tab:purple", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
 HIGHPASS_CYCLES = 1.5  # as detector.fit.HIGHPASS_CYCLES: content below this per period is ignored
@@ -76,6 +76,45 @@ def verdict_title(verdict) -> str:
     if status == "undetermined":
         return "UNDETERMINED: the detector could not look at this image"
     return "CLEAN: no policy barcode found"
+
+
+def figure_caption(verdict) -> str:
+    """What `verdict_figure` shows for this verdict, in words: the caption follows the stage
+    that decided (a pattern fit, the tone tracks, the first stage) and the status.
+
+    Examples
+    --------
+    >>> from lishield_guard.verdict import Verdict
+    >>> figure_caption(Verdict(False, None, 0, 2, undetermined="blank")).split(":")[0]
+    'Left'
+    """
+    status = _status(verdict)
+    if status == "undetermined":
+        return ("Left: the image as the detector decoded it. Right: why it could not look at "
+                "it; the image is not clean, and nothing was fitted.")
+    ev = verdict.evidence or {}
+    best = ev.get("best") if isinstance(ev.get("best"), dict) else {}
+    stage, info = _stage(best)
+    numbers = "Middle: the reason and the decision's numbers against their thresholds."
+    if verdict.profile == "paper":
+        return ("Top: the rows of the image, high-passed (Algorithm 1 fits no template). "
+                f"{numbers} Bottom: their spectrum, with the peak frequencies it matched.")
+    if info is not None:  # a pattern stage fitted a template
+        lead = ("the rows the " + stage + " fitted" if status == "protected"
+                else "the closest candidate's rows and its rejected " + stage)
+        return (f"Top: {lead}, with the fitted barcode template and the best steady square "
+                f"wave (the look-alike it had to beat). {numbers} Bottom: the rows' spectrum, "
+                f"with the barcode's tones.")
+    if stage == "tone tracks":
+        return ("Top: the analysed rows (tone tracks decide on their spectrum; no template was "
+                f"fitted). {numbers} Bottom: the rows' spectrum, with the barcode's tones; "
+                "solid lines mark the tones the tracks matched.")
+    first = str(ev.get("stage") or best.get("stage") or "") == "first stage" or str(
+        ev.get("reason", "")).startswith("first stage")
+    why = ("the first stage cleared it (no column-coherent stripes), so nothing was fitted"
+           if first else "no candidate came close enough to be fitted")
+    return (f"Top: the analysed rows; {why}. {numbers} Bottom: the rows' spectrum, with the "
+            "nearest policy's tones for reference.")
 
 
 def _highpass(n_rows: int, sigma_rows: float):
@@ -341,6 +380,8 @@ def verdict_figure(source, verdict, config):
     """
     from matplotlib.figure import Figure
 
+    if _status(verdict) == "undetermined":
+        return _undetermined_figure(source, verdict, config)
     ev = verdict.evidence or {}
     best = ev.get("best") if isinstance(ev.get("best"), dict) else {}
     det = config.detector
@@ -406,7 +447,7 @@ def verdict_figure(source, verdict, config):
         line_name += f", decoded at 1/{row_scale:g}"
     ax_rows.set_xlabel(line_name)
     ax_rows.set_ylabel("relative light (a.u.)")
-    ax_rows.set_xlim(0, n - 1)
+    ax_rows.set_xlim(0, max(n - 1, 1))  # one row: a unit-wide axis, not a singular one
     lead = "What decided" if _status(verdict) == "protected" else "Closest candidate (rejected)"
     ax_rows.set_title(f"{lead}: {stage}"
                       + (f" of {spec.name} on channel {channel}" if spec is not None and info
@@ -480,7 +521,40 @@ def verdict_figure(source, verdict, config):
         ax_spec.set_xlabel("frequency (cycles per row; no fit gives a row rate)")
     ax_spec.set_ylim(max(float(db.min()), -60.0), 3)
     ax_spec.set_ylabel("power (dB re max)")
-    ax_spec.set_title("Spectrum of the fitted rows", loc="left", fontsize=11)
+    ax_spec.set_title("Spectrum of the " + ("fitted" if info else "analysed") + " rows",
+                      loc="left", fontsize=11)
+    return fig
+
+
+def _undetermined_figure(source, verdict, config):
+    """The figure of a verdict the detector could not decide: the image as decoded (when it
+    decodes) and the reason, instead of empty axes (a 1x1 image, a blank frame)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(FIGSIZE_IN[0], 5.0), dpi=DPI, layout="constrained")
+    ax_img, ax_text = fig.subplots(1, 2, width_ratios=[1.0, 1.6])
+    fig.suptitle(verdict_title(verdict), fontsize=14, fontweight="bold", color="darkorange")
+    try:
+        from lishield_guard.detector.pipeline import decode_for
+
+        luma = decode_for(source, config).luma
+        ax_img.imshow(luma, cmap="gray", vmin=0, vmax=255 if luma.dtype == np.uint8 else None,
+                      interpolation="nearest", aspect="auto")
+        ax_img.set_title(f"the image as analysed: {luma.shape[0]} x {luma.shape[1]} pixels, "
+                         f"values {float(luma.min()):g}-{float(luma.max()):g}",
+                         loc="left", fontsize=9)
+    except Exception as exc:  # noqa: BLE001 - the figure must not fail on what it explains
+        ax_img.text(0.5, 0.5, f"not decodable: {exc}", ha="center", va="center", wrap=True)
+    ax_img.set_xticks([])
+    ax_img.set_yticks([])
+    reason = getattr(verdict, "undetermined", None) or (verdict.evidence or {}).get("reason")
+    text = ["The detector could not look at this image; it is not clean.",
+            "", "Reason: " + str(reason or "(no reason given)")]
+    if verdict.skipped:
+        text += ["", "Skipped: " + "; ".join(verdict.skipped)]
+    ax_text.axis("off")
+    ax_text.text(0.0, 1.0, "\n".join(textwrap.fill(t, 70) for t in text), va="top",
+                 ha="left", fontsize=10, family="monospace", transform=ax_text.transAxes)
     return fig
 
 

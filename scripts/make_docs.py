@@ -8,6 +8,8 @@ Blocks are delimited in README.md by ``<!-- NAME:begin ... -->`` and ``<!-- NAME
 
 - ``sample-output``: what ``lishield-guard detect demo/protected.jpg demo/clean.jpg`` prints
   for the demo images of ``make run`` (`synth.demo_images`, seed 0), and its exit status;
+- ``figure-captions``: what the two figures show, in the words the reviewer page uses
+  (`lishield_guard.plot.figure_caption`: it follows the stage that decided);
 - ``exit-status``: the exit statuses and the error codes leading to each
   (`lishield_guard.errors.ERROR_CODES`);
 
@@ -108,6 +110,17 @@ def sample_block(output: str, exit_status: int) -> str:
             f"machine that ran it. Exit status {exit_status}: {EXIT_MEANING[exit_status]}.)\n")
 
 
+def captions_block(folder: Path) -> str:
+    """The README's captions of the demo figures, from their verdicts (`figure_caption`)."""
+    import lishield_guard
+    from lishield_guard.plot import figure_caption
+
+    prot = figure_caption(lishield_guard.detect(folder / "demo" / "protected.jpg"))
+    clean = figure_caption(lishield_guard.detect(folder / "demo" / "clean.jpg"))
+    return (f"{prot}\n\nThe figure of the clean photo "
+            f"([docs/figures/verdict_clean.png](docs/figures/verdict_clean.png)): {clean}\n")
+
+
 def code_blocks() -> dict[Path, dict[str, str]]:
     """The generated blocks that need no detection: file -> block name -> content."""
     from lishield_guard.errors import error_code_table_markdown, exit_status_table_markdown
@@ -158,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         output, status = run_detect(folder)
         files = code_blocks()
         files[README]["sample-output"] = sample_block(output, status)
+        files[README]["figure-captions"] = captions_block(folder)
         stale = []
         for path, blocks in files.items():
             text = path.read_text()

@@ -33,3 +33,10 @@ def test_readme_sample_output_matches_a_fresh_run(tmp_path):
                                                          "sample-output"))
     assert readme == fresh, ("README's sample output differs from what `detect` prints now: "
                              "run `make docs`")
+
+
+def test_readme_figure_captions_follow_the_deciding_stage(tmp_path):
+    pytest.importorskip("synth")
+    make_docs.write_demo_images(tmp_path)
+    assert make_docs.read_block(make_docs.README.read_text(), "figure-captions") == \
+        make_docs.captions_block(tmp_path), "README's figure captions are stale: run `make docs`"

@@ -54,6 +54,8 @@ class ReviewResult(BaseModel):
     figure_png_base64: str | None = Field(
         default=None, description="The figure of what decided the verdict, PNG, base64.")
     figure_error: str | None = None
+    figure_caption: str = Field(default="", description="What the figure shows for this "
+                                "verdict: it follows the deciding stage and the status.")
     request_id: str | None = None
 
 
@@ -65,6 +67,11 @@ def _status(verdict) -> str:
 def _reason(verdict) -> str:
     ev = verdict.evidence or {}
     return str(ev.get("reason") or getattr(verdict, "undetermined", None) or "no reason given")
+
+
+def _verdict_label(verdict) -> str:
+    """The ``lishield_verdicts_total`` label, as `/v1/screen` counts it."""
+    return "undetermined" if _status(verdict) == "undetermined" else (verdict.policy or "none")
 
 
 def _plot_slots(svc: ServiceState) -> asyncio.Semaphore:
@@ -86,6 +93,7 @@ async def _figure(svc: ServiceState, data: bytes, verdict) -> bytes:
 def _record(request: Request, verdict) -> None:
     request.state.protected = verdict.protected
     request.state.policy = verdict.policy
+    request.state.verdict_status = _status(verdict)
 
 
 @router.get("/review", response_class=HTMLResponse, include_in_schema=False)
@@ -111,12 +119,12 @@ async def review(request: Request, svc: ServiceState = Depends(get_service)) -> 
     A figure that cannot be drawn leaves ``figure_png_base64`` null and says why in
     ``figure_error``; the verdict still stands.
     """
-    from lishield_guard.plot import verdict_title
+    from lishield_guard.plot import figure_caption, verdict_title
 
     data = await read_image(request, svc.settings)
     verdict = await svc.pool.detect(data, request=request)
     _record(request, verdict)
-    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    svc.metrics.verdicts.labels(_verdict_label(verdict)).inc()
     figure, error = None, None
     try:
         figure = base64.b64encode(await _figure(svc, data, verdict)).decode("ascii")
@@ -125,6 +133,7 @@ async def review(request: Request, svc: ServiceState = Depends(get_service)) -> 
     return ReviewResult(status=_status(verdict), title=verdict_title(verdict),
                         reason=_reason(verdict), verdict=verdict.to_dict(explain=True),
                         figure_png_base64=figure, figure_error=error,
+                        figure_caption=figure_caption(verdict),
                         request_id=request.state.request_id)
 
 
@@ -141,7 +150,7 @@ async def screen_plot(request: Request, svc: ServiceState = Depends(get_service)
     data = await read_image(request, svc.settings)
     verdict = await svc.pool.detect(data, request=request)
     _record(request, verdict)
-    svc.metrics.verdicts.labels(verdict.policy or "none").inc()
+    svc.metrics.verdicts.labels(_verdict_label(verdict)).inc()
     png = await _figure(svc, data, verdict)
     return Response(png, media_type="image/png", headers={
         "X-Lishield-Status": _status(verdict), "X-Lishield-Policy": verdict.policy or "",

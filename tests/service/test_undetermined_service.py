@@ -47,3 +47,26 @@ def test_openapi_says_protected_may_be_null():
     kinds = {alt.get("type") for alt in prop.get("anyOf", [prop])}
     assert kinds == {"boolean", "null"}, prop
     assert "null" in prop["description"] and "undetermined" in prop["description"]
+
+
+def test_review_caption_follows_the_verdict_and_counts_undetermined(client):
+    """The reviewer page's caption comes with the answer (no fixed fit caption), and an
+    undetermined review is counted as undetermined, as /v1/screen counts it."""
+    before = client.get("/metrics").text.count('policy="undetermined"')
+    body = client.post("/v1/review", content=WHITE).json()
+    assert body["status"] == "undetermined" and body["verdict"]["protected"] is None
+    assert body["figure_caption"].startswith("Left: the image")
+    assert body["figure_png_base64"]
+    clean = client.post("/v1/review", content=NOISE).json()
+    assert "fitted barcode template" not in clean["figure_caption"] or \
+        clean["verdict"]["evidence"].get("stage") not in (None, "first stage")
+    assert 'lishield_verdicts_total{policy="undetermined"}' in client.get("/metrics").text
+    assert before <= client.get("/metrics").text.count('policy="undetermined"')
+
+
+def test_review_page_has_no_fixed_caption():
+    from pathlib import Path
+
+    html = (Path(__file__).resolve().parents[2] / "service" / "static" / "review"
+            / "index.html").read_text()
+    assert "the rows that were fitted" not in html

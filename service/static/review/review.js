@@ -48,6 +48,7 @@
     if (data.figure_png_base64) {
       fig.src = "data:image/png;base64," + data.figure_png_base64;
       show(fig, true);
+      $("figure-caption").textContent = data.figure_caption || "";  // follows the deciding stage
       $("figure-caption").hidden = false;
     } else {
       fig.removeAttribute("src");
