@@ -85,7 +85,7 @@ def test_gauge_falls_within_2s_of_a_504(server):
         assert r.status_code == 504 and r.json()["code"] == "timeout"
         took = _falls_to_zero(c, FALL_WITHIN_S)
         assert took is not None, f"{GAUGE} still {_gauge(c)} {FALL_WITHIN_S} s after the 504"
-        assert pool.workers.pids(busy=True) == []  # the spinning process was ended, not left running
+        assert pool.workers.pids(busy=True) == []  # the spin was ended
         # the next detection gets a fresh worker and its answer (a blank frame: quick)
         ok = c.post("/v1/screen", content=_small_png())
         assert ok.status_code == 200 and ok.json()["status"] == "undetermined"
