@@ -1,4 +1,5 @@
-"""Mutation check of the pass rules, the look-alike defences and scan --resume.
+"""Mutation check of the pass rules, the look-alike defences, scan --resume and the
+regressions of issue #33 (batch cap, batch crash, archive names, flat config, truncated images).
 
 Each mutant is a one- or two-line change (a threshold comparison flipped, a look-alike term
 removed, the steady-wave gate turned off, resume that rescans everything). For each, the
@@ -12,7 +13,7 @@ Usage
     python scripts/mutate_rules.py                  # every mutant, its tests
     python scripts/mutate_rules.py --list           # names, edits and test subsets
     python scripts/mutate_rules.py --only grid-lookalike-margin-off --only steady-gate-off
-    python scripts/mutate_rules.py --group rules    # rules | defences | resume
+    python scripts/mutate_rules.py --group rules    # rules | defences | resume | issue33
     python scripts/mutate_rules.py --keep           # leave the temporary copy for a look
 
 Exit status: 0 every mutant killed, 1 some survived, 2 the unmutated baseline fails, a mutant
@@ -49,6 +50,7 @@ LOOKALIKE_TESTS = (
 )
 # real cached fits judged by a literal rule (about 15 s to build the tiny sets' records)
 TABLE_TESTS = ("tests/calibrate/test_core.py::test_cached_fit_tables_judged_as_the_rules_say",)
+REGRESSION_TESTS = "tests/test_regressions_33.py"
 RESUME_TESTS = ("tests/scan/test_scan_cli.py::test_resume_after_sigkill",
                 "tests/scan/test_scan_cli.py::test_torn_last_line_repaired")
 
@@ -156,6 +158,34 @@ MUTANTS: tuple[Mutant, ...] = (
            "summary does not count them", (Edit("lishield_guard/commands/scan.py",
                                                 "on_skip", "n_resumed += 1",
                                                 "n_resumed += 0"),), RESUME_TESTS),
+    # --- issue #33 item 8: regressions the suite could not see (tests/test_regressions_33.py)
+    Mutant("batch-cap-x1024", "issue33", "routes/screen.py: the batch body cap "
+           "max_batch_bytes multiplied by 1024",
+           (Edit("service/routes/screen.py", None, "read_form(request, "
+                 "s.max_batch_bytes,", "read_form(request, s.max_batch_bytes * 1024,"),),
+           (f"{REGRESSION_TESTS}::test_batch_body_over_max_batch_bytes_is_413",)),
+    Mutant("batch-crash-swallowed", "issue33", "routes/screen.py: a detector crash in "
+           "/v1/screen/batch becomes a per-file 500 entry of a 200 answer, logged nowhere",
+           (Edit("service/routes/screen.py", None, 'if code == "internal_error":',
+                 'if False:'),),
+           (f"{REGRESSION_TESTS}::test_detector_crash_in_batch_is_a_logged_500",)),
+    Mutant("member-backslash-kept", "issue33", "scan.py: archive member names no longer "
+           "normalise \\ to /, so ..\\x.jpg passes the traversal check",
+           (Edit("lishield_guard/scan.py", "unsafe_member_reason",
+                 'norm = name.replace("\\\\", "/")', "norm = name"),),
+           (f"{REGRESSION_TESTS}::test_backslash_member_names_are_caught",
+            f"{REGRESSION_TESTS}::test_backslash_traversal_in_a_zip_is_recorded_unsafe")),
+    Mutant("flat-config-typo-skipped", "issue33", "config.py: an unknown key of an old-style "
+           "flat [detector] table is skipped silently",
+           (Edit("lishield_guard/config.py", "_ungroup_legacy",
+                 'raise ConfigError(f"{source}: unknown [detector] key {key!r}")', "pass"),),
+           (f"{REGRESSION_TESTS}::test_unknown_key_in_a_flat_detector_table_is_an_error",)),
+    Mutant("load-truncated-images", "issue33", "decode.py: ImageFile.LOAD_TRUNCATED_IMAGES = "
+           "True, so a PNG cut at 50 % decodes (and may read clean)",
+           (Edit("lishield_guard/decode.py", None, "ImageFile.LOAD_TRUNCATED_IMAGES = False",
+                 "ImageFile.LOAD_TRUNCATED_IMAGES = True"),),
+           (f"{REGRESSION_TESTS}::test_png_cut_short_is_an_error_not_clean",
+            f"{REGRESSION_TESTS}::test_png_cut_short_is_422_over_http")),
 )
 
 
