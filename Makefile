@@ -56,6 +56,13 @@ test: $(DEV_STAMP) tools
 mutants: $(DEV_STAMP)
 	$(BIN)/python scripts/mutate_rules.py
 
+# The README's generated blocks (sample output of `detect` on the demo images, figure captions,
+# exit statuses), docs/service.md's error-code table and docs/figures/verdict_*.png, from the
+# current code; `scripts/make_docs.py --check` says whether they are stale without writing.
+.PHONY: docs
+docs: $(DEV_STAMP)
+	$(BIN)/python scripts/make_docs.py
+
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 
