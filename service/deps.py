@@ -104,6 +104,7 @@ class DetectPool:
 
             lishield_guard.detect(data, self._config)
             return
+        self.workers.warmup_data = data
         futs = [self.executor.submit(self.workers.run, data) for _ in range(self._n_threads)]
         for f in futs:
             f.result()

@@ -79,6 +79,10 @@ def _serve(conn, detect_fn: Callable, config: object) -> None:  # pragma: no cov
         conn.send_bytes(payload)
 
 
+class _DeadBeforeStart(Exception):  # noqa: N818 - internal signal
+    """The worker process was gone before it received the job (not the job's fault)."""
+
+
 class _Worker:
     """One child process and the parent's end of its pipe."""
 
@@ -90,8 +94,11 @@ class _Worker:
         self.proc.start()
         child.close()
 
-    def run(self, data: bytes) -> Any:
-        self.conn.send(data)
+    def run(self, data: Any) -> Any:
+        try:
+            self.conn.send(data)
+        except (BrokenPipeError, ConnectionResetError) as exc:
+            raise _DeadBeforeStart from exc
         ok, value = pickle.loads(self.conn.recv_bytes())
         if ok:
             return value
@@ -122,9 +129,12 @@ class Job:
             self._worker = worker
             return True
 
-    def _detach(self) -> None:
+    def _detach(self) -> bool:
+        """Forget the worker; True when the job was abandoned meanwhile (its worker may
+        have been killed after it answered: it must not serve another job)."""
         with self._lock:
             self._worker = None
+            return self.abandoned
 
     def abandon(self) -> None:
         """Stop the detection: kill its process if it runs (idempotent)."""
@@ -155,27 +165,56 @@ class WorkerProcesses:
         self._idle: list[_Worker] = []
         self._all: set[_Worker] = set()
         self._lock = threading.Lock()
+        self._freed = threading.Condition(self._lock)  # a worker became idle, or a slot free
         self._closed = False
+        self.warmup_data: Any = None  # run by a replacement before it serves (first-call costs)
 
     def _take(self) -> _Worker:
-        with self._lock:
-            if self._closed:
-                raise DetectionAbandoned("the service is shutting down")
-            if self._idle:
-                return self._idle.pop()
-            if len(self._all) >= self._n:  # pragma: no cover - one thread holds one worker
-                raise RuntimeError(f"all {self._n} detection workers are busy")
-            worker = _Worker(self._detect_fn, self._config)
-            self._all.add(worker)
-            return worker
+        while True:
+            with self._lock:
+                if self._closed:
+                    raise DetectionAbandoned("the service is shutting down")
+                # a full pool without an idle worker is a replacement still starting
+                self._freed.wait_for(lambda: self._closed or self._idle
+                                     or len(self._all) < self._n)
+                if self._closed:
+                    raise DetectionAbandoned("the service is shutting down")
+                worker = self._idle.pop() if self._idle else None
+                if worker is None:
+                    worker = _Worker(self._detect_fn, self._config)
+                    self._all.add(worker)
+                    return worker
+            if worker.proc.is_alive():
+                return worker
+            self._give_back(worker, healthy=False)  # died while idle: take another
 
     def _give_back(self, worker: _Worker, *, healthy: bool) -> None:
         with self._lock:
             if healthy and not self._closed:
                 self._idle.append(worker)
+                self._freed.notify()
                 return
             self._all.discard(worker)
+            self._freed.notify()
+            replace = not self._closed
         worker.close()
+        if replace:  # the next detection finds a started (and warmed) process
+            threading.Thread(target=self._replace, name="lishield-detect-respawn",
+                             daemon=True).start()
+
+    def _replace(self) -> None:
+        with self._lock:
+            if self._closed or len(self._all) >= self._n:
+                return
+            worker = _Worker(self._detect_fn, self._config)
+            self._all.add(worker)
+        healthy = True
+        if self.warmup_data is not None:
+            try:
+                worker.run(self.warmup_data)
+            except Exception:  # noqa: BLE001 - a worker that cannot warm up is not kept
+                healthy = False
+        self._give_back(worker, healthy=healthy)
 
     def run(self, data: Any, job: Job | None = None) -> Any:
         """``detect_fn(data, config)`` in a worker process (blocking; call from a thread).
@@ -190,26 +229,34 @@ class WorkerProcesses:
             Whatever ``detect_fn`` raised, re-raised here.
         """
         job = job or Job()
-        worker = self._take()
-        if not job._attach(worker):
-            self._give_back(worker, healthy=True)
-            raise DetectionAbandoned("abandoned before it started")
-        try:
-            result = worker.run(data)
-        except (EOFError, OSError, pickle.UnpicklingError):
-            job._detach()
-            self._give_back(worker, healthy=False)
-            if job.abandoned:
-                raise DetectionAbandoned("detection abandoned; its process was ended") from None
-            raise WorkerCrashed(f"detection worker process died (exit code "
-                                f"{worker.proc.exitcode})") from None
-        except BaseException:
-            job._detach()
-            self._give_back(worker, healthy=not job.abandoned)
-            raise
-        job._detach()
-        self._give_back(worker, healthy=True)
-        return result
+        for _attempt in range(2):  # a worker found dead before it started is replaced once
+            worker = self._take()
+            if not job._attach(worker):
+                self._give_back(worker, healthy=True)
+                raise DetectionAbandoned("abandoned before it started")
+            try:
+                result = worker.run(data)
+            except _DeadBeforeStart:
+                job._detach()
+                self._give_back(worker, healthy=False)
+                continue
+            except (EOFError, OSError, pickle.UnpicklingError):
+                abandoned = job._detach()
+                self._give_back(worker, healthy=False)
+                if abandoned:
+                    raise DetectionAbandoned("detection abandoned; its process was ended"
+                                             ) from None
+                worker.proc.join(JOIN_TIMEOUT_S)
+                raise WorkerCrashed(f"detection worker process died (exit code "
+                                    f"{worker.proc.exitcode})") from None
+            except BaseException:
+                abandoned = job._detach()
+                self._give_back(worker, healthy=not abandoned)
+                raise
+            abandoned = job._detach()
+            self._give_back(worker, healthy=not abandoned)  # killed after answering: replace
+            return result
+        raise WorkerCrashed("detection worker processes die before they start")
 
     def pids(self, *, busy: bool = False) -> list[int]:
         """Process ids of the live workers, or of those running a detection (``busy``)."""
@@ -222,5 +269,6 @@ class WorkerProcesses:
         with self._lock:
             self._closed = True
             workers, self._all, self._idle = list(self._all), set(), []
+            self._freed.notify_all()
         for w in workers:
             w.close()
