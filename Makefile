@@ -10,7 +10,7 @@ RUN_STAMP := $(VENV)/.installed-run
 DEV_STAMP := $(VENV)/.installed-dev
 IS_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo yes)
 
-.PHONY: run test lint bench clean venv tools mutants
+.PHONY: run test lint bench clean venv tools mutants train
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -62,6 +62,22 @@ mutants: $(DEV_STAMP)
 .PHONY: docs
 docs: $(DEV_STAMP)
 	$(BIN)/python scripts/make_docs.py
+
+# Reproduce the shipped decision weights (docs/training.md): the photo corpus, the scene bank,
+# 14000 training examples of seed 32 (cached in out/train/data), the network and its report.
+# CPU: about 40 minutes of data and 25 of training on 2 cores; the training extra is
+# installed here only (torch, CPU build).
+TRAIN_STAMP := $(VENV)/.installed-train
+$(TRAIN_STAMP): pyproject.toml $(RUN_STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[train]'
+	touch $@
+
+train: $(TRAIN_STAMP)
+	$(BIN)/python scripts/fetch_photos.py
+	$(BIN)/python -m training.scenes
+	$(BIN)/python -m training.train --n 14000 --seed 32 --epochs 10 --out out/train/model \
+	  --runner-up
+	$(BIN)/python -m training.report --model out/train/model/decision_model.npz
 
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .

@@ -31,7 +31,8 @@ from lishield_guard.stats import clopper_pearson
 from lishield_guard.threads import one_thread_per_worker
 
 # clopper_pearson re-exported for old imports
-__all__ = ["clopper_pearson", "decided_by", "emitter", "kinds", "main"]
+__all__ = ["clopper_pearson", "contrast_bucket", "decided_by", "emitter", "kinds",
+           "led_contrast", "main"]
 
 LOW_BAND_HZ = 200.0  # paper Sec. 7.3
 FLICKER_RULE_HZ = 80.0  # our firmware's rule, f_B / M > 80 Hz (paper Sec. 3.3.1)
@@ -114,10 +115,41 @@ def kinds(item: dict) -> list[str]:
     return out
 
 
+CONTRAST_BUCKETS = ((0.0, 0.01, "<1%"), (0.01, 0.03, "1-3%"), (0.03, 0.1, "3-10%"),
+                    (0.1, float("inf"), ">=10%"))
+
+
+def led_contrast(item: dict) -> float | None:
+    """The LED's row contrast in a positive's capture (`synth.camera.led_row_contrast`:
+    std over mean of the row light, ambient included, diluted by the lit fraction),
+    recomputed from its manifest row; None for negatives."""
+    if item.get("label") != 1:
+        return None
+    from lishield_guard.camera import CameraModel
+    from synth.camera import led_row_contrast
+    from synth.dataset import _make_light
+
+    camera = CameraModel(row_time_s=1.0 / item["row_rate_hz"], n_rows=item["sensor_rows"],
+                         exposure_s=item["exposure_s"])
+    return led_row_contrast(_make_light(item), camera, start_s=item["frame_start_s"],
+                            ambient_ratio=item.get("ambient_ratio") or 0.0,
+                            lit_fraction=(item.get("coverage") or {}).get("fraction", 1.0))
+
+
+def contrast_bucket(item: dict) -> str | None:
+    """``contrast:<1%`` ... ``contrast:>=10%`` for a positive (`CONTRAST_BUCKETS`)."""
+    c = led_contrast(item)
+    if c is None:
+        return None
+    return "contrast:" + next(name for lo, hi, name in CONTRAST_BUCKETS if lo <= c < hi)
+
+
 def decided_by(verdict) -> str:
-    """Which default-profile stage flagged an image: tone tracks, folding, the period sweep's
-    grid fit or its exact-model refinement."""
+    """Which stage flagged an image: the learned score (default profile), or for the cascade
+    tone tracks, folding, the period sweep's grid fit or its exact-model refinement."""
     stage = verdict.evidence.get("stage")
+    if verdict.profile == "default":
+        return "learned"
     if stage in ("tones", "fold", "sweep", "exact fit"):
         return stage.replace(" ", "-")
     best = verdict.evidence.get("best") or {}
@@ -138,10 +170,10 @@ def _judge(path: Path, cfg: AppConfig) -> tuple[bool, str | None, float, str | N
     t0 = time.perf_counter()
     v = detect(path, cfg)
     ms = (time.perf_counter() - t0) * 1e3
-    stage = decided_by(v) if v.protected and v.profile == "default" else None
+    stage = decided_by(v) if v.protected and v.profile in ("default", "cascade") else None
     cands = v.evidence.get("candidates") or []
     reached = None
-    if v.profile == "default" and cands:
+    if v.profile == "cascade" and cands:
         cleared = all(c.get("stage") == "first stage" for c in cands)
         reached = "first stage" if cleared else "search"
     return bool(v.protected), stage, ms, reached, int(v.matches)
@@ -151,7 +183,8 @@ def main() -> int:
     """Run every profile over DIR/manifest.jsonl and print the table (and --json)."""
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("dataset", type=Path)
-    ap.add_argument("--profiles", default="default,paper")
+    ap.add_argument("--profiles", default="default,cascade",
+                    help="comma-separated: default (learned), cascade, paper")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--config", type=Path, default=None,
                     help="TOML config (default: the shipped lishield_guard/data/default.toml)")
@@ -175,6 +208,7 @@ def main() -> int:
         print("no images to evaluate", file=sys.stderr)
         return 2
     base = load_config(args.config)
+    contrasts = {it["file"]: contrast_bucket(it) for it in items}
     report = {}
     for profile in args.profiles.split(","):
         cfg = AppConfig(detector=base.detector.replace(profile=profile), limits=base.limits,
@@ -186,8 +220,10 @@ def main() -> int:
             outcomes = list(pool.map(_judge, paths, [cfg] * len(paths), chunksize=4))
         for it, (protected, stage, ms, reached, matches) in zip(items, outcomes, strict=True):
             extra = ["ALL-pos"] if it["label"] == 1 else ["ALL-neg"]
-            if protected and profile == "default":
+            if protected and profile == "cascade":
                 extra.append(f"decided-by:{stage}:{'pos' if it['label'] else 'neg'}")
+            if (bucket := contrasts.get(it["file"])) is not None:
+                extra.append(bucket)
             for k in kinds(it) + extra:
                 stats[k][0] += int(protected)
                 stats[k][1] += 1

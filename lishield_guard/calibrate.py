@@ -274,6 +274,58 @@ class DefaultGrid:
 
 
 @dataclass(frozen=True)
+class LearnedGrid:
+    """Thresholds swept for the default (learned) profile: just above each of the
+    ``n_top`` highest clean logits of the tuning part (each admits one false alarm fewer),
+    and ``n_spread`` more spread evenly below them (the detection-rate curve)."""
+
+    n_top: int = 200
+    n_spread: int = 60
+    nudge: float = 1e-4  # logit units above a clean image's logit: that image passes as clean
+
+
+def learned_thresholds(clean_logits: np.ndarray, grid: LearnedGrid) -> np.ndarray:
+    """Candidate ``learned.threshold_logit`` values, ascending (see `LearnedGrid`)."""
+    x = np.sort(np.asarray(clean_logits, dtype=float)[np.isfinite(clean_logits)])
+    if not len(x):
+        return np.array([0.0])
+    top = x[-grid.n_top:] + grid.nudge
+    spread = np.quantile(x, np.linspace(0.5, 1.0, grid.n_spread, endpoint=False))
+    return np.unique(np.concatenate([spread, top]))
+
+
+def learned_scores(logits_clean: np.ndarray, logits_pos: np.ndarray,
+                   thresholds: np.ndarray) -> tuple[list[Setting], np.ndarray, np.ndarray]:
+    """Settings and verdicts of the learned profile at every threshold.
+
+    Returns
+    -------
+    settings : list of Setting
+        ``learned.threshold_logit`` = each threshold.
+    clean_prot, pos_prot : ndarray of bool, shape (n_thresholds, n_clean / n_pos)
+        `detector.decision.rule` applied to every image (one rule for detection and here).
+    """
+    from lishield_guard.detector.decision import rule_at
+
+    settings = [Setting("default", (("learned.threshold_logit", float(t)),))
+                for t in thresholds]
+    return (settings, rule_at(np.asarray(logits_clean)[None, :], thresholds[:, None]),
+            rule_at(np.asarray(logits_pos)[None, :], thresholds[:, None]))
+
+
+def learned_record(source, config: AppConfig) -> dict:
+    """The default profile's per-image measurement for calibration: the image logit and the
+    milliseconds decode + measurement took (``logit`` is None for an undetermined image)."""
+    from lishield_guard.detector.decision import measure
+
+    t0 = time.perf_counter()
+    decoded = decode_for(source, config)
+    rec = measure(decoded.rgb() if decoded.is_color else decoded.luma, config.detector)
+    return {"logit": None if rec.undetermined else rec.logit,
+            "learned_ms": (time.perf_counter() - t0) * 1e3}
+
+
+@dataclass(frozen=True)
 class PaperGrid:
     """Values swept for the paper profile (Algorithm 1)."""
 
@@ -430,7 +482,7 @@ def paper_peaks(decoded, config: AppConfig, grid: PaperGrid) -> tuple[dict, dict
 
 
 def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = None) -> dict:
-    """The expensive per-image part: default-profile Evidence and paper peak frequencies.
+    """The expensive per-image part: cascade-profile Evidence and paper peak frequencies.
 
     Returns
     -------
@@ -591,7 +643,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
             n_enough = enough.sum(axis=1)
             for fold_params, fold_ok in fold_variants:
                 si = len(settings)
-                settings.append(Setting("default", (
+                settings.append(Setting("cascade", (
                     ("tones.peak_false_prob", fp), ("tones.rel_tol", tol),
                     ("tones.min_occupancy", occ_lo), ("tones.max_occupancy", occ_hi),
                     ("tones.min_purity", mp), ("tones.min_tones", mt),

@@ -24,6 +24,7 @@ __all__ = [
     "DetectorConfig",
     "FitConfig",
     "FoldConfig",
+    "LearnedConfig",
     "PaperConfig",
     "ProfileConfig",
     "ScreenConfig",
@@ -41,6 +42,7 @@ DEFAULT_CONFIG_RESOURCE = "default.toml"
 FIT_RHO_FLOOR = 0.8  # detector.fit: below this fit rho the look-alike is not fitted (gain 0)
 PERIODIC_MIN_PERIODS = 2.0  # pattern periods a frame must hold for the fit's periodic path
 FINITE = 1e300  # bounds of a setting that must be finite
+PROFILES = ("default", "cascade", "paper")  # detector profiles: learned, pattern search, paper
 
 
 def _need(ok: bool, what: str, value: Any) -> None:
@@ -345,9 +347,37 @@ class FitConfig(_Group):
                     math.inf)
 
 
-STAGES: dict[str, type] = {"profiles": ProfileConfig, "screen": ScreenConfig,
-                           "tones": ToneConfig, "fold": FoldConfig, "sweep": SweepConfig,
-                           "fit": FitConfig, "paper": PaperConfig}
+@dataclass(frozen=True)
+class LearnedConfig(_Group):
+    """The default profile's decision: the learned score (`detector.learned`) and its threshold.
+
+    threshold_logit : float
+        An image is protected when its decision logit (the largest window logit of the
+        network) reaches this; chosen by calibration on the tuning part of the clean set and
+        certified on the disjoint certification part. Unitless (log-odds).
+    model : str or None
+        Path of decision weights (``.npz`` with its ``.json`` card beside it); None uses the
+        weights shipped in ``lishield_guard/data``.
+    min_explain_score : float
+        A flagged image's best spec must reach this template score (mean whitened log power
+        at its tones, ln units) for the reason to name its tones; below it the reason says the
+        network decided without a clear tone match. Unitless.
+    """
+
+    threshold_logit: float = 0.0
+    model: str | None = None
+    min_explain_score: float = 1.0
+
+    def __post_init__(self) -> None:
+        _number(self.threshold_logit, "learned.threshold_logit", -FINITE, FINITE)
+        _number(self.min_explain_score, "learned.min_explain_score", -FINITE, FINITE)
+        _need(self.model is None or (isinstance(self.model, str) and self.model),
+              "learned.model a path or false", self.model)
+
+
+STAGES: dict[str, type] = {"profiles": ProfileConfig, "learned": LearnedConfig,
+                           "screen": ScreenConfig, "tones": ToneConfig, "fold": FoldConfig,
+                           "sweep": SweepConfig, "fit": FitConfig, "paper": PaperConfig}
 
 
 def _optional(fields) -> set[str]:
@@ -364,7 +394,8 @@ OPTIONAL_FIELDS = {(name, f) for name, cls in STAGES.items()
 class DetectorConfig:
     """Every tunable number of the detector, grouped by the stage that reads it.
 
-    Profiles: ``"default"`` (stages in order: ``profiles``, ``screen``, ``tones``, ``fold``,
+    Profiles: ``"default"`` (the learned decision: ``profiles``, ``learned``), ``"cascade"``
+    (the pattern search, stages in order: ``profiles``, ``screen``, ``tones``, ``fold``,
     ``sweep``, ``fit``) and ``"paper"`` (``paper``). A stage set to None is off; so is an
     optional field set to None (in TOML: ``false``). The field defaults are the shipped,
     calibrated ``lishield_guard/data/default.toml`` (``DetectorConfig() ==
@@ -374,8 +405,9 @@ class DetectorConfig:
     sweeps and its reports use them.
     """
 
-    profile: Literal["default", "paper"] = "default"
+    profile: Literal["default", "cascade", "paper"] = "default"
     profiles: ProfileConfig = field(default_factory=ProfileConfig)
+    learned: LearnedConfig = field(default_factory=LearnedConfig)
     screen: ScreenConfig | None = field(default_factory=ScreenConfig)
     tones: ToneConfig = field(default_factory=ToneConfig)
     fold: FoldConfig | None = field(default_factory=FoldConfig)
@@ -384,8 +416,9 @@ class DetectorConfig:
     paper: PaperConfig = field(default_factory=PaperConfig)
 
     def __post_init__(self) -> None:
-        if self.profile not in ("default", "paper"):
-            raise ConfigError(f"profile must be 'default' or 'paper', got {self.profile!r}")
+        if self.profile not in PROFILES:
+            raise ConfigError(f"profile must be one of {', '.join(map(repr, PROFILES))}, got "
+                              f"{self.profile!r}")
         for name, cls in STAGES.items():
             group = getattr(self, name)
             if isinstance(group, dict):  # built from a table: validated by the group

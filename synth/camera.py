@@ -19,6 +19,7 @@ __all__ = [
     "SensorModel",
     "auto_exposure_s",
     "encode_jpeg",
+    "led_row_contrast",
     "led_rows_rgb",
     "linear_to_srgb8",
     "postprocess",
@@ -138,6 +139,16 @@ def led_rows_rgb(light: LightSource, camera: CameraModel, *, start_s: float = 0.
             raise ConfigError("the light's time-averaged intensity is 0; cannot normalise")
         rgb = rgb / avg
     return rgb
+
+
+def led_row_contrast(light: LightSource, camera: CameraModel, *, start_s: float = 0.0,
+                     ambient_ratio: float = 0.0, lit_fraction: float = 1.0) -> float:
+    """How strongly a light stripes a capture: std / mean of the luma-weighted light each row
+    sees (`led_rows_rgb`), the mean including the ambient light, times the lit fraction of the
+    frame (a light on a quarter of the frame dilutes the stripes of the whole image fourfold).
+    Unitless; 0.1 and above are stripes anyone sees."""
+    rows = led_rows_rgb(light, camera, start_s=start_s) @ np.array([0.299, 0.587, 0.114])
+    return float(rows.std() / (rows.mean() + ambient_ratio) * lit_fraction)
 
 
 def _check_scene(scene: np.ndarray, camera: CameraModel) -> np.ndarray:

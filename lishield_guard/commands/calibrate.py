@@ -65,9 +65,10 @@ def _code_key() -> str:
     return h.hexdigest()[:12]
 
 
-def _init_worker(cfg, grid, paper_grid, cache_dir: str | None) -> None:
+def _init_worker(cfg, grid, paper_grid, cache_dir: str | None,
+                 want: frozenset = frozenset({"cascade", "paper"})) -> None:
     one_thread_per_worker()
-    _W.update(cfg=cfg, grid=grid, paper_grid=paper_grid, cache=cache_dir,
+    _W.update(cfg=cfg, grid=grid, paper_grid=paper_grid, cache=cache_dir, want=want,
               cfg_key=_hash(repr(cfg.detector), repr(cfg.policies), repr(cfg.limits),
                             _code_key()))
 
@@ -95,23 +96,28 @@ def _cached(key: str, compute):
 
 
 def _work(path: str) -> dict:
-    from lishield_guard.calibrate import candidate_table, image_record
+    from lishield_guard.calibrate import candidate_table, image_record, learned_record
 
-    cfg, grid, pgrid = _W["cfg"], _W["grid"], _W["paper_grid"]
+    cfg, grid, pgrid, want = _W["cfg"], _W["grid"], _W["paper_grid"], _W["want"]
     st = os.stat(path)
     key = _hash(os.path.abspath(path), st.st_size, st.st_mtime_ns, _W["cfg_key"])
+    out: dict = {"path": path, "error": None, "cached": True}
     try:
-        rec, hit = _cached(EVIDENCE_PREFIX + key + "-" + _hash(repr(pgrid)),
-                           lambda: image_record(path, cfg, paper_grid=pgrid))
-        (table, match_ms), _ = _cached("tab-" + key + "-" + _hash(repr(grid)),
-                                       lambda: candidate_table(rec["evidence"], cfg, grid))
+        if "default" in want:
+            lrn, hit = _cached("lrn-" + key, lambda: learned_record(path, cfg))
+            out.update(lrn, cached=out["cached"] and hit)
+        if want & {"cascade", "paper"}:
+            rec, hit = _cached(EVIDENCE_PREFIX + key + "-" + _hash(repr(pgrid)),
+                               lambda: image_record(path, cfg, paper_grid=pgrid))
+            (table, match_ms), _ = _cached("tab-" + key + "-" + _hash(repr(grid)),
+                                           lambda: candidate_table(rec["evidence"], cfg, grid))
+            out.update(table=table, match_ms=match_ms, folds=rec["folds"],
+                       sweeps=rec["sweeps"], evidence_ms=rec["evidence_ms"],
+                       paper_peaks=rec["paper_peaks"], paper_ms=rec["paper_ms"],
+                       paper_decode_ms=rec["paper_decode_ms"], cached=out["cached"] and hit)
     except Exception as exc:  # noqa: BLE001 - one bad file never stops calibration
         return {"path": path, "error": f"{type(exc).__name__}: {exc}"}
-    return {"path": path, "error": None, "table": table, "match_ms": match_ms,
-            "folds": rec["folds"], "sweeps": rec["sweeps"], "evidence_ms": rec["evidence_ms"],
-            "paper_peaks": rec["paper_peaks"],
-            "paper_ms": rec["paper_ms"], "paper_decode_ms": rec["paper_decode_ms"],
-            "cached": hit}
+    return out
 
 
 def _null_work(args) -> dict:
@@ -277,8 +283,11 @@ def calibrate_command(
              "look-alikes and captures) to see the whole report in a few minutes."),
     config: Path | None = typer.Option(None, "--config", help="Base config (default: shipped)."),
     jobs: int = typer.Option(0, "--jobs", "-j", help="Worker processes (default: all cores)."),
-    profiles: str = typer.Option("default,paper", "--profiles",
-                                 help="Profiles to sweep: default, paper or both."),
+    profiles: str = typer.Option(
+        "default", "--profiles",
+        help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
+             "one cheap measurement per image), cascade (the pattern search's thresholds; "
+             "seconds per striped image), paper (Algorithm 1)."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Do not read or write the cache."),
     dry_run: bool = typer.Option(
         False, "--dry-run",
@@ -339,8 +348,8 @@ def calibrate_command(
         if not d.is_dir():
             raise _fail(f"not a folder: {str(d)!r}")
     want = {p.strip() for p in profiles.split(",") if p.strip()}
-    if not want or want - {"default", "paper"}:
-        raise _fail(f"--profiles takes default and/or paper, got {profiles!r}")
+    if not want or want - {"default", "cascade", "paper"}:
+        raise _fail(f"--profiles takes default, cascade and/or paper, got {profiles!r}")
     try:
         base = load_config(config)
     except LishieldError as exc:
@@ -403,7 +412,7 @@ def calibrate_command(
         os.makedirs(cache_dir, exist_ok=True)
 
     # --- per-image evidence (cached), clean images in the order tuning, certification
-    init = (base, grid, pgrid, cache_dir)
+    init = (base, grid, pgrid, cache_dir, frozenset(want))
     all_clean = tune_c + cert_c
     res_clean = _run_pool([str(p) for p, _, _ in all_clean], _work, init, jobs, "clean",
                           progress)
@@ -428,8 +437,16 @@ def calibrate_command(
 
     # --- verdicts of every setting (columns: tuning images first, so tuning slices are views)
     blocks = []  # per profile: settings, clean_prot, pos_prot, clean_hits, clean_cands, time
-    ev_ms = np.mean([r["evidence_ms"] for r, _, _ in ok_c + ok_p])
-    if "default" in want:
+    if "default" in want:  # the learned score: one logit per image, thresholds swept
+        lc = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_c])
+        lp = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_p])
+        s, pc, pp = cal.learned_scores(lc, lp, cal.learned_thresholds(lc[:n_tc],
+                                                                      cal.LearnedGrid()))
+        l_ms = float(np.mean([r["learned_ms"] for r, _, _ in ok_c + ok_p]))
+        blocks.append((s, pc, pp, pc, np.ones(pc.shape[1]), np.full(len(s), l_ms)))
+    ev_ms = (np.mean([r["evidence_ms"] for r, _, _ in ok_c + ok_p])
+             if want & {"cascade", "paper"} else 0.0)
+    if "cascade" in want:
         s, pc, hc, cc = cal.default_scores(np.stack([r["table"] for r, _, _ in ok_c]), grid,
                                            [r["folds"] for r, _, _ in ok_c], base.detector,
                                            sweeps=[r["sweeps"] for r, _, _ in ok_c])
@@ -488,7 +505,7 @@ def calibrate_command(
 
     chosen_det = best.setting.apply(base.detector)
     null = None
-    if best.setting.profile == "default" and cache_dir:
+    if best.setting.profile == "cascade" and cache_dir:
         rng = np.random.default_rng(0)
         idx = rng.permutation(n_tc)[:NULL_MODEL_SAMPLE]
         nres = _run_pool([(ok_c[i][0]["path"], chosen_det) for i in idx], _null_work, init,
@@ -699,19 +716,19 @@ def _write_report(report: Path, summaries, best, cert, info: dict) -> dict:
     paths["settings"] = report / "settings.jsonl"
 
     # heatmaps (paper Figs. 21-22 analogues), tuning part
-    fixed_d = best.setting.as_dict if best.setting.profile == "default" else next(
-        (s.setting.as_dict for s in summaries if s.setting.profile == "default"), {})
+    fixed_d = best.setting.as_dict if best.setting.profile == "cascade" else next(
+        (s.setting.as_dict for s in summaries if s.setting.profile == "cascade"), {})
     paper_best = max((s for s in summaries if s.setting.profile == "paper"),
                      key=lambda s: (s.far_upper <= info["target_far"], s.detection), default=None)
     panels = []
     if fixed_d:
         tol, fp = "tones.rel_tol", "tones.peak_false_prob"
-        panels += [("default", fixed_d, tol, fp, "false_match_fraction",
-                    "default: false candidate matches (>= min_tones) on clean"),
-                   ("default", fixed_d, tol, fp, "far_upper", "default: FAR 95% upper bound"),
-                   ("default", fixed_d, tol, fp, "detection", "default: detection rate"),
-                   ("default", fixed_d, "tones.min_purity", "tones.min_occupancy",
-                    "detection", "default: detection rate")]
+        panels += [("cascade", fixed_d, tol, fp, "false_match_fraction",
+                    "cascade: false candidate matches (>= min_tones) on clean"),
+                   ("cascade", fixed_d, tol, fp, "far_upper", "cascade: FAR 95% upper bound"),
+                   ("cascade", fixed_d, tol, fp, "detection", "cascade: detection rate"),
+                   ("cascade", fixed_d, "tones.min_purity", "tones.min_occupancy",
+                    "detection", "cascade: detection rate")]
     if paper_best is not None:
         pd_ = paper_best.setting.as_dict
         tol = "paper.ratio_tol"
@@ -736,7 +753,7 @@ def _write_report(report: Path, summaries, best, cert, info: dict) -> dict:
 
     # ROC-style: detection vs FAR upper bound on the tuning part, and the certified point
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for prof, marker in (("default", "o"), ("paper", "s")):
+    for prof, marker in (("default", "o"), ("cascade", "^"), ("paper", "s")):
         pts = [(s.far_upper, s.detection) for s in summaries if s.setting.profile == prof]
         if pts:
             x, y = zip(*pts, strict=True)
@@ -879,7 +896,7 @@ def _write_report(report: Path, summaries, best, cert, info: dict) -> dict:
         lines.append(f"| {s.setting.label()} | {s.false_alarms}/{s.n_clean} | "
                      f"{s.far_upper:.3g} | {s.detection:.3f} | {s.false_match_fraction:.3g} | "
                      f"{s.time_ms_per_image:.0f} |")
-    for prof in ("default", "paper"):
+    for prof in ("default", "cascade", "paper"):
         cand = [s for s in summaries if s.setting.profile == prof]
         if cand:
             top = max(cand, key=lambda s: (s.far_upper <= tf, s.detection))

@@ -1,5 +1,10 @@
 """The one orchestration: run the stages in order on an image and turn their results into a Verdict.
 
+The default profile (`_detect_learned`) decides with fixed work per image: block profiles,
+window spectra (`spectra`), the learned score (`learned`, `decision`) and, for its reason, the
+spec whose tones explain the deciding window best (`explain`). The cascade profile (below) is the
+pattern search that came before it, kept as a named profile.
+
 Detection (`detect`, `detect_decoded`) and calibration (`collect_evidence`, `decide`,
 `screen_specs`, `fold_fits`, `sweep_fits`) run the same stage sequence per axis, in order:
 row profiles and frequency tracks (`analyse_plane`: `profiles`, `tracks`), the first stage
@@ -25,7 +30,15 @@ from lishield_guard.config import (
     default_config,
 )
 from lishield_guard.decode import Decoded, decode
+from lishield_guard.detector.decision import (
+    DecisionRecord,
+    decision_model,
+    measure,
+    rule,
+    window_label,
+)
 from lishield_guard.detector.emitters import cycles_range, emitter_variants, variant_label
+from lishield_guard.detector.explain import match_specs, peak_tones
 from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
 from lishield_guard.detector.fold import candidate_periods, fold_match, refine_period
 from lishield_guard.detector.paper import run_paper
@@ -118,14 +131,15 @@ def detect(source, config: AppConfig | DetectorConfig | None = None) -> Verdict:
 
 def decode_for(source, config: AppConfig) -> Decoded:
     """``source`` decoded as the configured profile analyses it (`decode.decode`): the default
-    profile at reduced JPEG scale (``max_decode_rows``), and with its colour planes at once
-    when an RGB spec is configured (an ordinary photo needs them: one decode instead of luma
-    first and colour later)."""
+    and cascade profiles at reduced JPEG scale (``max_decode_rows``); the default profile
+    with its colour planes (the learned stage reads R, G and B), the cascade with them at once
+    when an RGB spec is configured (one decode instead of luma first and colour later)."""
     det = config.detector
-    default = det.profile == "default"
-    want_rgb = default and any(s.is_rgb for p in config.policies for s in p.specs)
+    reduced = det.profile in ("default", "cascade")
+    want_rgb = det.profile == "default" or (
+        reduced and any(s.is_rgb for p in config.policies for s in p.specs))
     return decode(source, limits=config.limits, fast=det.profiles.fast_decode,
-                  want_rgb=want_rgb, max_rows=det.profiles.max_decode_rows if default else 0)
+                  want_rgb=want_rgb, max_rows=det.profiles.max_decode_rows if reduced else 0)
 
 
 def detect_decoded(decoded: Decoded, config: AppConfig, *, _timer: _Timer | None = None
@@ -135,7 +149,98 @@ def detect_decoded(decoded: Decoded, config: AppConfig, *, _timer: _Timer | None
     det = config.detector
     if det.profile == "paper":
         return _detect_paper(decoded, config, timer)
-    return _detect_default(decoded, config, timer)
+    if det.profile == "cascade":
+        return _detect_cascade(decoded, config, timer)
+    return _detect_learned(decoded, config, timer)
+
+
+def _detect_learned(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
+    """The default profile: fixed work per image, whatever it shows.
+
+    decode -> block profiles of both axes -> window spectra -> the network's logits
+    (`decision.measure`) -> the one rule (`decision.rule`) -> which configured spec explains
+    the deciding window's tones best (`explain.match_specs`, bounded), for the reason and the
+    policy.
+    """
+    det = config.detector
+    specs = [(p.id, s) for p in config.policies for s in p.specs]
+    skipped: list[str] = []
+    if decoded.row_scale > 1:
+        skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
+                       f"DCT domain (stripes need rows, not pixels)")
+    if not specs:
+        why = "no policy configured: nothing to look for"
+        return Verdict(False, None, 0, 1, evidence={"reason": why}, skipped=tuple(skipped),
+                       timings_ms=timer.ms, profile="default", undetermined=why)
+    with timer("measure"):
+        pixels = decoded.rgb() if decoded.is_color else decoded.luma
+        rec = measure(pixels, det)
+    skipped += list(rec.spectra.skipped) + [f"usable blocks: {n}" for n in rec.usable_notes]
+    if rec.undetermined is not None:
+        return Verdict(False, None, 0, 1, evidence={"reason": rec.undetermined},
+                       skipped=tuple(skipped), timings_ms=timer.ms, profile="default",
+                       undetermined=rec.undetermined)
+    with timer("explain"):
+        evidence = learned_evidence(rec, specs, det)
+    protected = bool(rule(rec.logit, det))
+    skipped.append("exact capture-model fit: on request (detect --explain, the reviewer page)")
+    return Verdict(protected=protected, policy=evidence["policy"] if protected else None,
+                   matches=int(protected), required=1, evidence=evidence,
+                   skipped=tuple(skipped), timings_ms=timer.ms, profile="default",
+                   score=float(1.0 / (1.0 + math.exp(-min(max(rec.logit, -60.0), 60.0)))))
+
+
+def learned_evidence(rec: DecisionRecord, specs: list[tuple[str, BarcodeSpec]],
+                     det: DetectorConfig) -> dict:
+    """The default verdict's evidence and reason from its record: the decision (logit,
+    threshold, deciding window) and the configured spec that best explains the tones of the
+    deciding window's column range (its policy is the verdict's policy when flagged)."""
+    k = rec.best
+    siblings = _row_siblings(rec, k)
+    fits = []
+    for w in siblings:  # every row window of the deciding column range; the best placement
+        fits += [(f, w) for f in match_specs(rec.spectra.x[w], [s for _, s in specs])]
+    best_fit, w_best = max(fits, key=lambda fw: fw[0].score) if fits else (None, None)
+    policy = next((pid for pid, s in specs if best_fit and s.name == best_fit.spec),
+                  specs[0][0])
+    thr = det.learned.threshold_logit
+    where = window_label(rec.spectra, k)
+    flagged = bool(rule(rec.logit, det))
+    if flagged and best_fit is not None and best_fit.score >= det.learned.min_explain_score:
+        tones = "; ".join(f"{c}: " + ", ".join(f"{v:.4f}" for v in vs)
+                          for c, vs in best_fit.tones_cpr.items())
+        leak = "" if best_fit.leak is None else (
+            f"; its tones stand {best_fit.score:.1f} above their level in the other colour "
+            f"planes (leak {best_fit.leak:.1f})")
+        reason = (f"barcode: decision logit {rec.logit:.2f} >= threshold {thr:.2f} ({where}); "
+                  f"best explained by {best_fit.spec} of policy {policy}, tones at {tones} "
+                  f"cycles/row (template score {best_fit.score:.1f}){leak}")
+    elif flagged:
+        reason = (f"barcode: decision logit {rec.logit:.2f} >= threshold {thr:.2f} ({where}); "
+                  f"no configured spec's tones stand out clearly (best template score "
+                  f"{best_fit.score if best_fit else float('nan'):.1f}); policy {policy}")
+    else:
+        reason = (f"clean: decision logit {rec.logit:.2f} < threshold {thr:.2f} (highest in "
+                  f"{where})")
+    order = np.argsort(rec.logits)[::-1][:MAX_CANDIDATES]
+    return {"reason": reason, "stage": "learned", "logit": round(rec.logit, 4),
+            "threshold_logit": thr, "axis": rec.spectra.axes[k], "where": where,
+            "policy": policy, "spec_fit": None if best_fit is None else best_fit.to_dict(),
+            "spec_fit_window": None if w_best is None else window_label(rec.spectra, w_best),
+            "windows": [{"where": window_label(rec.spectra, int(i)),
+                         "logit": round(float(rec.logits[i]), 4)} for i in order],
+            "tones_cpr": [[round(f, 5), round(v, 2)] for f, v in peak_tones(rec.spectra.x[k])],
+            "model": decision_model(det).card.get("training_commit")}
+
+
+def _row_siblings(rec: DecisionRecord, window: int) -> list[int]:
+    """The windows of the same axis and column range as ``window`` (every row range), the
+    window itself first."""
+    axis, (c0, c1, _, _) = rec.spectra.axes[window], rec.spectra.windows[window]
+    same = [i for i, (a, w) in enumerate(zip(rec.spectra.axes, rec.spectra.windows,
+                                             strict=True))
+            if a == axis and (w[0], w[1]) == (c0, c1) and i != window]
+    return [window, *same]
 
 
 def _full_scale(plane: np.ndarray) -> float:
@@ -709,8 +814,9 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
                    score=m.score)
 
 
-def _detect_default(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
-    """`_run_stages`, lazily, on the planes of a decoded image analysed as they are needed."""
+def _detect_cascade(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
+    """The cascade profile: `_run_stages`, lazily, on the planes of a decoded image analysed as
+    they are needed."""
     det = config.detector
     with timer("profile_luma"):  # a frame the test cannot run on is undetermined, never clean
         why = unusable_reason(decoded.luma, n_col_blocks=det.profiles.n_col_blocks,

@@ -1,0 +1,138 @@
+"""The default profile's per-image record and its one decision rule (detection and calibration).
+
+`measure` turns decoded pixels into a `DecisionRecord` with fixed work for a given image size:
+block profiles of both axes (`spectra.block_profiles_rgb`, one pass over the pixels), the
+usable-block check, the window spectra and the network's window logits. `decide_record` is the
+decision rule, written once: detection applies it to one record, calibration to a table of
+cached logits (`rule` takes arrays). Nothing here searches: the cost is bounded by the image
+size whatever the image shows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lishield_guard.config import DetectorConfig
+from lishield_guard.detector.learned import DecisionModel, load_model, score_windows, shipped_model
+from lishield_guard.detector.spectra import (
+    AXIS_NAMES,
+    SpectralInput,
+    axes_input,
+    axis_too_small,
+    block_profiles_rgb,
+)
+from lishield_guard.detector.usable import MIN_USABLE_BLOCKS, full_scale_of, usable_blocks
+
+__all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "window_label"]
+
+@dataclass(frozen=True)
+class DecisionRecord:
+    """Every measurement the default profile decides on, for one image.
+
+    Attributes
+    ----------
+    logits : ndarray of shape (n_windows,), float32
+        The network's logit of every window (empty when nothing could be analysed).
+    spectra : SpectralInput
+        The network's input (kept for the explanation and the figure).
+    undetermined : str or None
+        Why the image could not be analysed at all (None when it was).
+    usable_notes : tuple of str
+        Column blocks left out of the analysis of an axis and why (black, saturated, flat).
+    """
+
+    logits: np.ndarray
+    spectra: SpectralInput
+    undetermined: str | None = None
+    usable_notes: tuple[str, ...] = field(default=())
+
+    @property
+    def best(self) -> int:
+        """Index of the deciding window (the largest logit), -1 when there is none."""
+        return int(np.argmax(self.logits)) if len(self.logits) else -1
+
+    @property
+    def logit(self) -> float:
+        """The image's decision logit: the largest window logit (-inf when none)."""
+        return float(self.logits[self.best]) if len(self.logits) else float("-inf")
+
+
+def rule_at(logit, threshold_logit):
+    """The decision rule: protected when the image logit reaches the threshold (numbers, or
+    arrays that broadcast: calibration applies it to every image at every threshold)."""
+    out = np.asarray(logit) >= np.asarray(threshold_logit)
+    return out if out.ndim else bool(out)
+
+
+def rule(logit, det: DetectorConfig):
+    """`rule_at` with the configured ``learned.threshold_logit``."""
+    return rule_at(logit, det.learned.threshold_logit)
+
+
+def decision_model(det: DetectorConfig) -> DecisionModel:
+    """The configured decision weights (``learned.model``, or the shipped ones)."""
+    return shipped_model() if det.learned.model is None else _load(det.learned.model)
+
+
+_CACHE: dict[str, DecisionModel] = {}
+
+
+def _load(path: str) -> DecisionModel:
+    if path not in _CACHE:
+        _CACHE[path] = load_model(path)
+    return _CACHE[path]
+
+
+def window_label(spectra: SpectralInput, index: int) -> str:
+    """Where window ``index`` lies, in words (``"rows; columns 25-75 %, rows 0-50 %"``)."""
+    c0, c1, r0, r1 = spectra.windows[index]
+    across = "columns" if spectra.axes[index] == "rows" else "rows"
+    along = "rows" if spectra.axes[index] == "rows" else "columns"
+    return (f"stripes along {spectra.axes[index]}; {across} {c0:.0%}-{c1:.0%}, "
+            f"{along} {r0:.0%}-{r1:.0%}")
+
+
+def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | None = None
+            ) -> DecisionRecord:
+    """The default profile's measurements of one image (see the module docstring).
+
+    Parameters
+    ----------
+    pixels : ndarray of shape (n_rows, n_cols, 3) or (n_rows, n_cols)
+        Decoded pixels in stored orientation (uint8, uint16 or float32).
+    det : DetectorConfig
+        ``profiles.orientations`` picks the axes; ``learned.model`` the weights.
+    model : DecisionModel, optional
+        Weights to use instead of the configured ones.
+
+    Returns
+    -------
+    DecisionRecord
+        ``undetermined`` says why when no axis could be analysed (too small, no dynamic
+        range, clipped, fewer than `usable.MIN_USABLE_BLOCKS` usable column blocks).
+    """
+    axes = (0, 1) if det.profiles.orientations == "both" else (0,)
+    skipped = tuple(f"{AXIS_NAMES[a]}: {why}" for a in axes
+                    if (why := axis_too_small(pixels.shape, a)) is not None)
+    ok = tuple(a for a in axes if axis_too_small(pixels.shape, a) is None)
+    if not ok:
+        return DecisionRecord(np.zeros(0, np.float32), axes_input({}, full_scale=1.0),
+                              "image too small: " + "; ".join(skipped))
+    scale = full_scale_of(pixels)
+    usable, keep, notes = {}, {}, []
+    for axis, prof in block_profiles_rgb(pixels, axes=ok).items():
+        keep[axis], why = usable_blocks(prof.mean(axis=0), full_scale=scale)
+        if why:
+            notes.append(f"{AXIS_NAMES[axis]}: " + ", ".join(why))
+        if int(keep[axis].sum()) >= MIN_USABLE_BLOCKS:
+            usable[axis] = prof
+    spectra = axes_input(usable, full_scale=scale, skipped=skipped, keep=keep)
+    if not usable:
+        lo, hi = float(np.min(pixels)), float(np.max(pixels))
+        why = (f"no dynamic range: every pixel is {lo:g}" if lo == hi else
+               f"too few usable column blocks on every analysed axis ({'; '.join(notes)})")
+        return DecisionRecord(np.zeros(0, np.float32), spectra, why, tuple(notes))
+    logits = score_windows(spectra.x, model or decision_model(det))
+    return DecisionRecord(logits, spectra, None, tuple(notes))

@@ -1,0 +1,154 @@
+"""The learned decision stage: a small 1-D convolutional network scores every window's spectra.
+
+Inference is a pure numpy function of `spectra.SpectralInput.x` (no training framework at run
+time). The weights ship as package data (``lishield_guard/data/decision_model.npz``) with a
+card (``decision_model.json``: training commit, data seed, input version, metrics on a fresh
+set); loading refuses a card whose input version is not `spectra.INPUT_VERSION`.
+
+Network (the same layers as ``training/model.py``, which trains it)::
+
+    per window: (channels, frequency) -> 4 x [conv1d k=7, dilation 1/2/4/8, ReLU]
+      -> [max over frequency, mean over frequency] -> dense + ReLU -> dense -> window logit
+    image logit = max over windows (multiple-instance: one lit window is enough)
+
+Convolution along log frequency with a maximum over frequency makes the score invariant to
+the unknown scale (row rate, resizing) up to the grid's ends; the receptive field (91 bins,
+3.8 octaves) spans every tone ratio of the paper's barcodes and their harmonics.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from lishield_guard.detector.spectra import CHANNELS, INPUT_VERSION, N_FREQ
+from lishield_guard.errors import ConfigError
+
+__all__ = ["DecisionModel", "load_model", "score_windows", "shipped_model"]
+
+MODEL_FILE = "decision_model.npz"
+CARD_FILE = "decision_model.json"
+
+
+@dataclass(frozen=True)
+class DecisionModel:
+    """Weights of the decision network and their card.
+
+    Attributes
+    ----------
+    convs : tuple of (weight, bias, dilation)
+        weight of shape (kernel * c_in, c_out) float32 (im2col layout), bias (c_out,).
+    dense : tuple of (weight, bias)
+        weight of shape (c_in, c_out) float32, bias (c_out,).
+    card : dict
+        Provenance and metrics (see ``decision_model.json``).
+    """
+
+    convs: tuple
+    dense: tuple
+    card: dict
+
+    @property
+    def kernel(self) -> int:
+        """Convolution kernel size in frequency bins."""
+        return int(self.card["kernel"])
+
+
+def _conv_same(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, dilation: int,
+               kernel: int) -> np.ndarray:
+    """ReLU(conv1d) with zero 'same' padding; x of shape (n, n_freq, c_in) -> (n, n_freq, c_out)."""
+    n, k_len, c_in = x.shape
+    pad = dilation * (kernel - 1) // 2
+    xp = np.zeros((n, k_len + 2 * pad, c_in), np.float32)
+    xp[:, pad:pad + k_len] = x
+    cols = np.concatenate([xp[:, j * dilation:j * dilation + k_len] for j in range(kernel)],
+                          axis=2)  # (n, n_freq, kernel * c_in), tap-major like the weights
+    out = cols.reshape(n * k_len, -1) @ weight
+    out += bias
+    np.maximum(out, 0.0, out=out)
+    return out.reshape(n, k_len, -1)
+
+
+def score_windows(x: np.ndarray, model: DecisionModel) -> np.ndarray:
+    """Logit of every window (higher: more like a barcode capture).
+
+    Parameters
+    ----------
+    x : ndarray of shape (n_windows, len(CHANNELS), N_FREQ)
+        `spectra.SpectralInput.x`.
+    model : DecisionModel
+        Weights (`shipped_model` or `load_model`).
+
+    Returns
+    -------
+    ndarray of shape (n_windows,), float32
+        Unbounded logits, in the windows' order; the image's logit is their maximum.
+
+    Raises
+    ------
+    ConfigError
+        When x does not have the model's input shape.
+    """
+    if x.ndim != 3 or x.shape[1:] != (len(CHANNELS), N_FREQ):
+        raise ConfigError(f"decision input must have shape (n, {len(CHANNELS)}, {N_FREQ}), "
+                          f"got {x.shape}")
+    if len(x) == 0:
+        return np.zeros(0, np.float32)
+    h = np.ascontiguousarray(x.transpose(0, 2, 1), dtype=np.float32)
+    for weight, bias, dilation in model.convs:
+        h = _conv_same(h, weight, bias, dilation, model.kernel)
+    h = np.concatenate([h.max(axis=1), h.mean(axis=1)], axis=1)
+    *hidden, (w_out, b_out) = model.dense
+    for weight, bias in hidden:
+        h = np.maximum(h @ weight + bias, 0.0)
+    return (h @ w_out + b_out)[:, 0].astype(np.float32)
+
+
+def load_model(weights: str | Path, card: str | Path | None = None) -> DecisionModel:
+    """Read a decision model (``.npz`` weights and its ``.json`` card beside them).
+
+    Raises
+    ------
+    ConfigError
+        When a file is missing or unreadable, or the card's ``input_version`` is not the
+        code's `spectra.INPUT_VERSION` (weights trained on another representation).
+    """
+    weights = Path(weights)
+    card = Path(card) if card is not None else weights.with_suffix(".json")
+    try:
+        meta = json.loads(card.read_text())
+        with np.load(weights) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"cannot read decision model {weights} / {card}: {exc}") from exc
+    return _from_arrays(arrays, meta, str(weights))
+
+
+def _from_arrays(arrays: dict, meta: dict, where: str) -> DecisionModel:
+    if meta.get("input_version") != INPUT_VERSION:
+        raise ConfigError(f"decision model {where} was trained on input "
+                          f"{meta.get('input_version')!r}; this code computes "
+                          f"{INPUT_VERSION!r}: retrain it (make train)")
+    try:
+        convs = tuple((arrays[f"conv{i}_w"].astype(np.float32),
+                       arrays[f"conv{i}_b"].astype(np.float32), int(d))
+                      for i, d in enumerate(meta["dilations"]))
+        dense = tuple((arrays[f"dense{i}_w"].astype(np.float32),
+                       arrays[f"dense{i}_b"].astype(np.float32))
+                      for i in range(int(meta["n_dense"])))
+    except KeyError as exc:
+        raise ConfigError(f"decision model {where} lacks {exc}") from exc
+    return DecisionModel(convs, dense, meta)
+
+
+@cache
+def shipped_model() -> DecisionModel:
+    """The decision model shipped in ``lishield_guard/data`` (loaded once per process)."""
+    data = resources.files("lishield_guard.data")
+    with resources.as_file(data / MODEL_FILE) as w, resources.as_file(data / CARD_FILE) as c:
+        return load_model(w, c)

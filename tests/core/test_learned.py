@@ -1,0 +1,180 @@
+"""The default profile's learned decision: shipped weights, known captures, look-alikes, cost.
+
+Captures come from `make_led_image` (tests/core/conftest.py): an LED model written apart from
+`synth`, whose captures the network never saw in training.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lishield_guard import PRESETS, AppConfig, ConfigError, default_config, detect
+from lishield_guard.config import Policy
+from lishield_guard.detector import decision, spectra
+from lishield_guard.detector.learned import load_model, score_windows, shipped_model
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _with_policies(*policies: Policy) -> AppConfig:
+    base = default_config()
+    return AppConfig(detector=base.detector, limits=base.limits, policies=policies,
+                     source=base.source)
+
+
+def _border(img: np.ndarray, *, factor: float = 3.0, value: int = 255) -> np.ndarray:
+    """``img`` in the middle of a uniform border, ``factor`` times as wide."""
+    h, w = img.shape[:2]
+    out = np.full((h, int(w * factor), 3), value, np.uint8)
+    c0 = (out.shape[1] - w) // 2
+    out[:, c0:c0 + w] = img
+    return out
+
+
+def test_the_shipped_weights_load_with_their_card():
+    m = shipped_model()
+    assert m.card["input_version"] == spectra.INPUT_VERSION
+    assert m.card["data_seed"] is not None and m.card["training_commit"]
+    assert (Path(decision.__file__).parents[1] / "data" / "decision_model.npz").stat().st_size \
+        < 1_000_000
+
+
+def test_a_card_for_another_input_version_is_refused(tmp_path):
+    src = Path(decision.__file__).parents[1] / "data"
+    (tmp_path / "m.npz").write_bytes((src / "decision_model.npz").read_bytes())
+    card = json.loads((src / "decision_model.json").read_text())
+    (tmp_path / "m.json").write_text(json.dumps({**card, "input_version": "old-v0"}))
+    with pytest.raises(ConfigError, match="trained on input 'old-v0'"):
+        load_model(tmp_path / "m.npz")
+
+
+def test_stored_captures_score_to_their_stored_logits():
+    """End to end (decode, profiles, spectra, network) on committed images."""
+    expected = json.loads((DATA / "learned_scores.json").read_text())
+    cfg = default_config()
+    for name, want in expected.items():
+        v = detect(DATA / name, cfg)
+        assert v.evidence["logit"] == pytest.approx(want["logit"], abs=2e-3), name
+        assert v.protected == want["protected"], name
+
+
+@pytest.mark.parametrize("name, kw", [
+    ("table1-seq2", {"switching_hz": 200.0}),  # the paper's evaluation rate
+    ("table1-seq1", {"switching_hz": 200.0, "phase": "free"}),  # timers run on: continuous
+    ("table1-seq3", {"switching_hz": 1600.0}),  # f_B = f_1
+    ("table2-rgb", {"switching_hz": 200.0}),
+])
+def test_barcodes_are_flagged(make_led_image, name, kw):
+    v = detect(make_led_image(PRESETS[name], **kw))
+    assert v.protected, v.evidence["reason"]
+    assert v.policy == "no-distribution"
+    assert v.evidence["stage"] == "learned"
+
+
+def test_a_reversed_slot_order_is_flagged(make_led_image):
+    spec = dataclasses.replace(PRESETS["table1-seq2"], order=(2, 1, 0))
+    v = detect(make_led_image(spec, switching_hz=200.0))
+    assert v.protected, v.evidence["reason"]
+
+
+def test_a_partly_lit_frame_is_flagged(make_led_image):
+    v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, lit_fraction=0.3,
+                              ambient=0.3))
+    assert v.protected, v.evidence["reason"]
+
+
+def test_a_capture_inside_a_white_border_is_flagged(make_led_image):
+    img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, jpeg=None)
+    v = detect(_border(img, factor=3.0))
+    assert v.protected, v.evidence["reason"]
+
+
+def test_two_policies_name_the_policy_of_the_capture(make_led_image):
+    white = Policy(id="white", description="white LED", specs=(PRESETS["table1-seq1"],))
+    rgb = Policy(id="rgb", description="RGB LED", specs=(PRESETS["table2-rgb"],))
+    cfg = _with_policies(white, rgb)
+    v_white = detect(make_led_image(PRESETS["table1-seq1"], switching_hz=200.0), cfg)
+    v_rgb = detect(make_led_image(PRESETS["table2-rgb"], switching_hz=200.0), cfg)
+    assert (v_white.protected, v_white.policy) == (True, "white"), v_white.evidence["reason"]
+    assert (v_rgb.protected, v_rgb.policy) == (True, "rgb"), v_rgb.evidence["reason"]
+    assert "white" in v_white.evidence["reason"] and "rgb" in v_rgb.evidence["reason"]
+
+
+def _pwm(n_rows: int, freq_hz: float, duty: float, row_rate_hz: float = 30_000.0):
+    t = np.arange(n_rows) / row_rate_hz
+    return 0.5 * (0.4 + 0.6 * (((t * freq_hz) % 1.0) < duty))
+
+
+@pytest.mark.parametrize("flicker", [
+    pytest.param(lambda n: _pwm(n, 400.0, 0.5), id="pwm-400Hz"),
+    pytest.param(lambda n: _pwm(n, 1000.0, 0.2), id="pwm-1kHz-duty-0.2"),
+    pytest.param(lambda n: 0.5 * (0.6 + 0.4 * np.abs(np.sin(np.pi * 100 * np.arange(n)
+                                                              / 30_000.0))), id="mains-100Hz"),
+    pytest.param(lambda n: 0.5 * (_pwm(n, 700.0, 0.5) + _pwm(n, 120.0, 0.3)),
+                 id="two-lights"),
+])
+def test_look_alike_lights_are_cleared(make_led_image, flicker):
+    v = detect(make_led_image(None, flicker=flicker(1080)))
+    assert v.status == "clean", v.evidence["reason"]
+
+
+def test_a_striped_texture_is_cleared():
+    from synth.scene import texture_scene
+
+    from synth.camera import linear_to_srgb8
+
+    refl, _ = texture_scene("blinds", 1080, 1440, rng=np.random.default_rng(3),
+                            period_px=24.0, angle_deg=0.0)
+    img = linear_to_srgb8(np.clip(refl * 0.5, 0, 1))
+    v = detect(img)
+    assert v.status == "clean", v.evidence["reason"]
+
+
+def test_the_work_is_bounded_by_the_image_size_not_its_content(make_led_image, monkeypatch):
+    """A striped 1080p frame costs the same fixed work as a clean one: one profile pass,
+    the same number of window spectra and network units; no search."""
+    calls = {"spectra": 0, "units": 0}
+    real_ws, real_sw = decision.axes_input, decision.score_windows
+
+    def count_ws(profiles, **kw):
+        calls["spectra"] += len(profiles)
+        return real_ws(profiles, **kw)
+
+    def count_sw(x, model):
+        calls["units"] += len(x)
+        return real_sw(x, model)
+
+    monkeypatch.setattr(decision, "axes_input", count_ws)
+    monkeypatch.setattr(decision, "score_windows", count_sw)
+    striped = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0)
+    clean = make_led_image(None)
+    counts = []
+    for img in (striped, clean):
+        calls.update(spectra=0, units=0)
+        t0 = time.process_time()
+        detect(img)
+        cpu_s = time.process_time() - t0
+        counts.append(dict(calls))
+        assert cpu_s < 2.0  # generous: about 0.05 s on one core
+    assert counts[0] == counts[1] == {"spectra": 2, "units": 128}
+
+
+def test_scores_do_not_depend_on_the_model_path_taken(make_led_image):
+    """The configured model path and the shipped weights give the same logit."""
+    img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0)
+    path = Path(decision.__file__).parents[1] / "data" / "decision_model.npz"
+    cfg = default_config()
+    det = cfg.detector.with_values({"learned.model": str(path)})
+    a = detect(img, cfg).evidence["logit"]
+    b = detect(img, det).evidence["logit"]
+    assert a == b
+    rec = decision.measure(np.asarray(img) if not isinstance(img, bytes) else
+                           __import__("lishield_guard").decode(img, want_rgb=True).rgb(),
+                           cfg.detector)
+    assert np.isfinite(score_windows(rec.spectra.x, shipped_model())).all()

@@ -1,0 +1,1 @@
+"""Training of the learned decision stage: data, model, report (never imported at run time)."""
