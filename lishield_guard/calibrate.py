@@ -275,23 +275,48 @@ class DefaultGrid:
 
 @dataclass(frozen=True)
 class LearnedGrid:
-    """Thresholds swept for the default (learned) profile: just above each of the
-    ``n_top`` highest clean logits of the tuning part (each admits one false alarm fewer),
-    and ``n_spread`` more spread evenly below them (the detection-rate curve)."""
+    """Thresholds swept for the default (learned) profile.
 
-    n_top: int = 200
+    Candidates are every tuning clean logit plus ``nudge`` (each admits one false alarm fewer)
+    and ``n_spread`` quantiles of the clean logits, but none below the *tail threshold*: the
+    clean logits above their ``tail_quantile`` are fitted with an exponential tail (mean
+    excess), and the threshold is where that tail predicts ``tail_far_fraction`` x the target
+    FAR. A threshold just above the largest tuning logit would be exceeded by the largest of
+    the certification part about half the time (the two parts are exchangeable); the tail
+    threshold keeps a margin that is chosen on the tuning part alone.
+    """
+
     n_spread: int = 60
     nudge: float = 1e-4  # logit units above a clean image's logit: that image passes as clean
+    tail_quantile: float = 0.99
+    tail_far_fraction: float = 0.1
 
 
-def learned_thresholds(clean_logits: np.ndarray, grid: LearnedGrid) -> np.ndarray:
+def tail_threshold(clean_logits: np.ndarray, target_far: float, grid: LearnedGrid) -> float:
+    """The logit an exponential fit of the clean tail puts at ``grid.tail_far_fraction *
+    target_far`` exceedance (see `LearnedGrid`); the largest finite logit when the tail is
+    empty."""
+    x = np.sort(np.asarray(clean_logits, dtype=float)[np.isfinite(clean_logits)])
+    if len(x) < 2:
+        return float(x[-1]) if len(x) else 0.0
+    u = float(np.quantile(x, grid.tail_quantile))
+    excess = x[x > u] - u
+    beta = float(excess.mean()) if len(excess) else 0.0
+    p_u = (1.0 - grid.tail_quantile)
+    want = grid.tail_far_fraction * target_far
+    return u + beta * max(math.log(p_u / want), 0.0)
+
+
+def learned_thresholds(clean_logits: np.ndarray, grid: LearnedGrid, *,
+                       target_far: float) -> np.ndarray:
     """Candidate ``learned.threshold_logit`` values, ascending (see `LearnedGrid`)."""
     x = np.sort(np.asarray(clean_logits, dtype=float)[np.isfinite(clean_logits)])
     if not len(x):
         return np.array([0.0])
-    top = x[-grid.n_top:] + grid.nudge
+    floor = tail_threshold(x, target_far, grid)
     spread = np.quantile(x, np.linspace(0.5, 1.0, grid.n_spread, endpoint=False))
-    return np.unique(np.concatenate([spread, top]))
+    cand = np.unique(np.concatenate([spread, x + grid.nudge, [floor]]))
+    return cand[cand >= floor]
 
 
 def learned_scores(logits_clean: np.ndarray, logits_pos: np.ndarray,

@@ -364,7 +364,7 @@ class LearnedConfig(_Group):
         network decided without a clear tone match. Unitless.
     """
 
-    threshold_logit: float = 0.0
+    threshold_logit: float = 4.491605468030307  # calibrate, 2026-11-26: see default.toml
     model: str | None = None
     min_explain_score: float = 1.0
 

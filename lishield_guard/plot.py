@@ -69,7 +69,7 @@ def verdict_title(verdict) -> str:
     """The verdict in words, e.g. ``"PROTECTED: policy 'no-distribution' (table1-seq1)"``."""
     status = _status(verdict)
     ev = verdict.evidence or {}
-    spec = _get(ev, "best", "spec") or _get(ev, "best_spec")
+    spec = _get(ev, "best", "spec") or _get(ev, "best_spec") or _get(ev, "spec_fit", "spec")
     if status == "protected":
         return (f"PROTECTED: carries a barcode of policy {verdict.policy!r}"
                 + (f" ({spec})" if spec else ""))
@@ -93,6 +93,10 @@ def figure_caption(verdict) -> str:
         return ("Left: the image as the detector decoded it. Right: why it could not look at "
                 "it; the image is not clean, and nothing was fitted.")
     ev = verdict.evidence or {}
+    if ev.get("stage") == "learned":
+        from lishield_guard.figure_learned import learned_caption
+
+        return learned_caption(verdict)
     best = ev.get("best") if isinstance(ev.get("best"), dict) else {}
     stage, info = _stage(best)
     numbers = "Middle: the reason and the decision's numbers against their thresholds."
@@ -382,6 +386,10 @@ def verdict_figure(source, verdict, config):
 
     if _status(verdict) == "undetermined":
         return _undetermined_figure(source, verdict, config)
+    if (verdict.evidence or {}).get("stage") == "learned":  # the default profile
+        from lishield_guard.figure_learned import learned_figure
+
+        return learned_figure(source, verdict, config)
     ev = verdict.evidence or {}
     best = ev.get("best") if isinstance(ev.get("best"), dict) else {}
     det = config.detector

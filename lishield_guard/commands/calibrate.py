@@ -440,8 +440,8 @@ def calibrate_command(
     if "default" in want:  # the learned score: one logit per image, thresholds swept
         lc = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_c])
         lp = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_p])
-        s, pc, pp = cal.learned_scores(lc, lp, cal.learned_thresholds(lc[:n_tc],
-                                                                      cal.LearnedGrid()))
+        s, pc, pp = cal.learned_scores(lc, lp, cal.learned_thresholds(
+            lc[:n_tc], cal.LearnedGrid(), target_far=target_far))
         l_ms = float(np.mean([r["learned_ms"] for r, _, _ in ok_c + ok_p]))
         blocks.append((s, pc, pp, pc, np.ones(pc.shape[1]), np.full(len(s), l_ms)))
     ev_ms = (np.mean([r["evidence_ms"] for r, _, _ in ok_c + ok_p])

@@ -270,7 +270,8 @@ def test_the_default_profile_decodes_a_colour_jpeg_once_when_an_rgb_spec_is_conf
 
     ok, buf = cv2.imencode(".jpg", data.coffee()[:, :, ::-1])
     assert ok
-    cfg = default_config()
+    base = default_config()  # the cascade decodes colour only when an RGB spec needs it
+    cfg = replace(base, detector=base.detector.replace(profile="cascade"))
     assert any(s.is_rgb for p in cfg.policies for s in p.specs)
     both = decode_for(buf.tobytes(), cfg)
     assert both._rgb is not None and both.rgb().shape == (*both.luma.shape, 3)

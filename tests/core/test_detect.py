@@ -6,8 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from cascade import cascade_config, detect_cascade
 
-from lishield_guard import PRESETS, DetectorConfig, Verdict, default_config, detect
+from lishield_guard import PRESETS, DetectorConfig, Verdict, detect
 
 PAPER = DetectorConfig(profile="paper")
 
@@ -33,20 +34,23 @@ def test_period_sweep_finds_a_frame_under_two_periods(make_led_image, name, swit
     spec = PRESETS[name]
     assert 1080 / (3 / switching_hz * row_rate_hz) < 1.5  # too few periods to fold on
     img = make_led_image(spec, switching_hz=switching_hz, row_rate_hz=row_rate_hz)
-    v = detect(img)
+    v = detect_cascade(img)
     assert v.protected, v.evidence["reason"]
     sweep = v.evidence["best"]["sweep"]
     assert sweep["spec"] == name and "tiled every" in v.evidence["reason"]
     assert abs(sweep["switching_hz"] / switching_hz - 1) < 0.1
-    assert not detect(img, default_config().detector.replace(sweep=None)).protected
+    assert not detect_cascade(img, cascade_config().detector.replace(sweep=None)).protected
 
 
 def test_rotated_pixels_still_detected(make_led_image):
     img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, jpeg=None)
     v = detect(np.rot90(img).copy())
-    assert v.protected
-    assert v.evidence["candidates"][0]["axis"] == "columns" or any(
-        c["axis"] == "columns" and c["n_matched"] >= 2 for c in v.evidence["candidates"])
+    assert v.protected, v.evidence["reason"]
+    assert v.evidence["axis"] == "columns"
+    c = detect_cascade(np.rot90(img).copy())
+    assert c.protected
+    assert c.evidence["candidates"][0]["axis"] == "columns" or any(
+        c["axis"] == "columns" and c["n_matched"] >= 2 for c in c.evidence["candidates"])
 
 
 @pytest.mark.parametrize("depth", [0.3, 1.0])
@@ -82,7 +86,8 @@ def _one_spec(name: str, **detector):
     from lishield_guard.config import AppConfig, Policy, load_config
 
     base = load_config()
-    return AppConfig(detector=base.detector.replace(**detector), limits=base.limits,
+    return AppConfig(detector=base.detector.replace(profile="cascade", **detector),
+                     limits=base.limits,
                      policies=(Policy("no-distribution", (PRESETS[name],)),))
 
 
@@ -209,11 +214,11 @@ def test_verdict_contract_is_json_ready(make_led_image):
     assert json.loads(json.dumps(d, allow_nan=False)) == d
     brief = v.to_dict(explain=False)
     assert "evidence" not in brief and brief["protected"] is True
-    assert set(d["timings_ms"]) >= {"decode", "match"} and d["timings_ms"]["decode"] > 0
+    assert set(d["timings_ms"]) >= {"decode", "measure"} and d["timings_ms"]["decode"] > 0
 
 
 def test_luma_verdict_skips_colour_planes(make_led_image):
-    v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
+    v = detect_cascade(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
     assert v.protected
     assert any("colour planes" in s for s in v.skipped)
 
@@ -244,8 +249,8 @@ def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     from synth.dataset import render_item
 
     data, _ = render_item(_RGB_HIDDEN_IN_LUMA)
-    cfg = default_config()
-    lazy = detect(data, cfg)
+    cfg = cascade_config()
+    lazy = detect_cascade(data, cfg)
     dec = decode(data, limits=cfg.limits, fast=True,
                  max_rows=cfg.detector.profiles.max_decode_rows)
     full = decide(collect_evidence(dec, cfg), cfg)
@@ -282,10 +287,10 @@ def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
     assert desc["scene"] == {"scene": "skimage:coins"}
     # the sweep's grid fit alone reaches rho 0.74, which the shipped sweep_min_rho (0.7)
     # accepts; held at 0.8 the grid cannot decide, and only the exact fit can
-    det = default_config().detector.with_values({"sweep.min_rho": 0.8})
-    assert detect(data, det).protected
+    det = cascade_config().detector.with_values({"sweep.min_rho": 0.8})
+    assert detect_cascade(data, det).protected
     monkeypatch.setattr(fit_mod, "MATCHED_REFIT", False)
-    assert not detect(data, det).protected
+    assert not detect_cascade(data, det).protected
 
 
 # A PWM light (4.08 kHz, duty 0.66, depth 0.34) on the scikit-image moon photo, 1/770 s
@@ -313,11 +318,11 @@ def test_jittering_pwm_tone_is_not_a_barcode_without_a_fit_that_beats_the_lookal
 
     data, desc = render_item(_PWM_ON_MOON)
     assert desc["scene"] == {"scene": "skimage:moon"}
-    cfg = default_config()
+    cfg = cascade_config()
     assert cfg.detector.tones.min_fit_gain > 0
-    v = detect(data, cfg)
+    v = detect_cascade(data, cfg)
     assert not v.protected
     assert "not confirmed" in v.evidence["reason"]
     off = cfg.detector.with_values({"tones.min_fit_gain": None})
-    unchecked = detect(data, off)
+    unchecked = detect_cascade(data, off)
     assert unchecked.protected and "alternate down the rows" in unchecked.evidence["reason"]

@@ -5,9 +5,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from cascade import cascade_config, detect_cascade
 from skimage import data
 
-from lishield_guard import PRESETS, default_config, detect
+from lishield_guard import PRESETS
 from lishield_guard.detector.screen import screen_plane
 from lishield_guard.detector.tracks import PlaneAnalysis, Track
 
@@ -17,7 +18,7 @@ FIRST_STAGE = "first stage"
 @pytest.mark.parametrize("photo", ["astronaut", "chelsea", "coffee", "rocket"])
 def test_steady_light_photo_is_cleared_by_the_first_stage(make_led_image, photo):
     scene = cv2.resize(getattr(data, photo)(), (1440, 1080))
-    v = detect(make_led_image(None, scene=scene))
+    v = detect_cascade(make_led_image(None, scene=scene))
     assert not v.protected
     assert v.evidence["reason"].startswith(FIRST_STAGE), v.evidence["reason"]
     for cand in v.evidence["candidates"]:
@@ -34,7 +35,7 @@ def test_pwm_light_on_a_photo_is_cleared_by_the_first_stage(make_led_image, pwm_
     t = np.arange(1080) / 30_000.0
     flicker = 0.25 + 0.5 * (((t * pwm_hz) % 1.0) < duty)
     moon = np.repeat(data.moon()[..., None], 3, axis=2)
-    v = detect(make_led_image(None, flicker=flicker, scene=cv2.resize(moon, (1440, 1080))))
+    v = detect_cascade(make_led_image(None, flicker=flicker, scene=cv2.resize(moon, (1440, 1080))))
     assert not v.protected
     reasons = [c["reason"] for c in v.evidence["candidates"] if c["axis"] == "rows"]
     assert reasons and all(r.startswith(f"{FIRST_STAGE}: the stripes are a steady square wave")
@@ -55,12 +56,12 @@ def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
     big = np.clip(big + rng.normal(0, 2.0, big.shape), 0, 255).astype(np.uint8)
     ok, buf = cv2.imencode(".jpg", big[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
     assert ok
-    v = detect(buf.tobytes())
+    v = detect_cascade(buf.tobytes())
     assert v.status == "clean"
     assert all(c["stage"] == FIRST_STAGE for c in v.evidence["candidates"]), \
         [(c["axis"], c["reason"]) for c in v.evidence["candidates"]]
     # the grid is what the screen would otherwise count
-    cfg = default_config()
+    cfg = cascade_config()
     dec = decode(buf.tobytes(), limits=cfg.limits, max_rows=cfg.detector.profiles.max_decode_rows)
     grid = jpeg_grid_cpr(dec.format, dec.row_scale)
     assert dec.row_scale == pytest.approx(8 / 3) and min(abs(g - 1 / 3) for g in grid) < 1e-6
@@ -111,7 +112,7 @@ def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
     from lishield_guard.decode import decode
     from lishield_guard.detector.pipeline import analyse_plane
 
-    cfg = default_config()
+    cfg = cascade_config()
     det = cfg.detector
     img = make_led_image(PRESETS["table1-seq1"], switching_hz=300.0, lit_fraction=0.5,
                          ambient=0.5)
@@ -122,15 +123,15 @@ def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
                           partial_false_prob=det.screen.partial_false_prob,
                           partial_min_frames=det.screen.partial_min_frames)
     assert halves.passed and halves.via == "right half", halves
-    assert detect(img, det.replace(screen=None)).protected
-    assert detect(img).protected
-    assert not detect(img, det.with_values({"screen.partial_false_prob": None})).protected
+    assert detect_cascade(img, det.replace(screen=None)).protected
+    assert detect_cascade(img).protected
+    assert not detect_cascade(img, det.with_values({"screen.partial_false_prob": None})).protected
 
 
 def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
     """Barcodes of random presets, rates, exposures and ambient: each one the full cascade
     flags (screen off) is flagged with the screen on."""
-    base = default_config()
+    base = cascade_config()
     full = base.detector.replace(screen=None)
     flagged = 0
     for _ in range(6):
@@ -140,10 +141,10 @@ def test_screen_never_clears_what_the_full_cascade_flags(make_led_image, rng):
                              exposure_s=float(rng.choice([1 / 8000, 1 / 2000, 1 / 1000])),
                              ambient=float(rng.choice([0.5, 2.0, 4.0])),
                              row_rate_hz=float(rng.uniform(30e3, 120e3)))
-        v_full = detect(img, full)
+        v_full = detect_cascade(img, full)
         if v_full.protected:
             flagged += 1
-            v = detect(img, base)
+            v = detect_cascade(img, base)
             assert v.protected, v.evidence["reason"]
     assert flagged >= 3
 
@@ -166,11 +167,11 @@ def test_a_cleared_photo_pays_neither_tone_tracks_nor_sub_block_detrending(make_
     sizes = []
     monkeypatch.setattr(tracks, "detrend_profiles",
                         lambda p, **kw: sizes.append(p.shape[0]) or real_detrend(p, **kw))
-    v = detect(image)
+    v = detect_cascade(image)
     assert v.status == "clean"
     assert all(c["stage"] == FIRST_STAGE and c["n_matched"] == 0
                for c in v.evidence["candidates"])
-    n_blocks = default_config().detector.profiles.n_col_blocks
+    n_blocks = cascade_config().detector.profiles.n_col_blocks
     assert sizes.count(n_blocks) == 8  # L, R, G, B along rows and columns
     assert sum(s > n_blocks for s in sizes) <= 2  # the halves test, luma only
 
@@ -214,7 +215,6 @@ def test_the_evidence_lists_searched_candidates_before_cleared_ones():
     """With more (axis, spec) candidates than the evidence lists, the ones the pattern search
     looked at are kept ahead of those the first stage cleared (same tone count): what
     evaluate.py's "stage reached" reads from the verdict."""
-    from lishield_guard.config import default_config
     from lishield_guard.detector.pipeline import MAX_CANDIDATES, _verdict
     from lishield_guard.detector.tones import SpecMatch
 
@@ -223,7 +223,7 @@ def test_the_evidence_lists_searched_candidates_before_cleared_ones():
 
     cands = [cand("rows", f"s{i}", "first stage") for i in range(MAX_CANDIDATES)]
     cands += [cand("columns", "s0", "exact fit"), cand("columns", "s1", "sweep")]
-    v = _verdict(cands, default_config(), [], {}, 1, "jpeg")
+    v = _verdict(cands, cascade_config(), [], {}, 1, "jpeg")
     listed = v.evidence["candidates"]
     assert len(listed) == MAX_CANDIDATES
     assert [c["stage"] for c in listed[:2]] == ["exact fit", "sweep"]

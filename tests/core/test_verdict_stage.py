@@ -5,8 +5,9 @@ and ``evidence["stage"]`` names the stage."""
 from __future__ import annotations
 
 import pytest
+from cascade import detect_cascade
 
-from lishield_guard import PRESETS, detect
+from lishield_guard import PRESETS
 
 PATTERN_STAGES = ("fold", "sweep", "exact fit")
 
@@ -16,7 +17,8 @@ PATTERN_STAGES = ("fold", "sweep", "exact fit")
     ("table1-seq2", 1000.0, 1 / 2000, "exact fit")])  # one cycle per slot: only the pattern
 def test_protected_verdict_counts_belong_to_the_deciding_stage(make_led_image, name,
                                                                 switching_hz, exposure_s, want):
-    v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz, exposure_s=exposure_s))
+    v = detect_cascade(make_led_image(PRESETS[name], switching_hz=switching_hz,
+                                      exposure_s=exposure_s))
     assert v.protected, v.evidence["reason"]
     stage = v.evidence["stage"]
     assert stage == want
@@ -31,7 +33,7 @@ def test_protected_verdict_counts_belong_to_the_deciding_stage(make_led_image, n
 
 
 def test_clean_verdict_names_the_last_stage_that_looked(make_led_image):
-    v = detect(make_led_image(None))  # steady light: the first stage clears it
+    v = detect_cascade(make_led_image(None))  # steady light: the first stage clears it
     assert not v.protected
     assert v.evidence["stage"] == "first stage"
     assert v.matches < v.required
