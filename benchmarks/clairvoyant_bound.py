@@ -1,4 +1,4 @@
-"""Upper bound on any row-profile detector's TPR at a false-alarm rate, on a labelled synth set.
+"""A clairvoyant reference: one statistic's TPR at a false-alarm rate when the template is known.
 
 A clairvoyant detector knows each barcode capture's true template (the light its emitter
 played: f_B, slot order, restart or continuous phase, rise time; row rate, exposure, frame
@@ -6,8 +6,14 @@ start) and correlates it with the rows the default profile fits (the quiet-weigh
 linear column sub-blocks, `fit.linear_common`, high-passed as in the exact fit). For its
 false alarms each positive is rendered a second time with the same scene, camera, noise and
 JPEG settings under steady light (its *twin*) and the same template is correlated with the
-twin's rows. No detector that must also search over the unknown parameters, on the same rows,
-can beat this one's ROC; the gap between the two is the price of not knowing the parameters.
+twin's rows.
+
+This bounds *this statistic* (the normalised correlation of the quiet-weighted block mean with
+the true template), not the physics: it is not a ceiling for detectors. A detector that whitens
+the rows against the scene's own spectrum and weights column blocks and frequencies by their
+noise (as the default profile's spectra do), or learns to, can beat it, since natural scenes put
+most of their row energy at low frequencies where this correlation takes it in unweighted.
+The name of the script is historical.
 
 Monochrome and RGB positives alike (RGB: the luma-weighted sum of the channel templates);
 captures whose rotation is baked into the pixels are skipped (their LED runs along columns).

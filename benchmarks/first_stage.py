@@ -31,6 +31,8 @@ def _stage(verdict) -> str:
     reason = (verdict.evidence or {}).get("reason", "")
     if verdict.status == "undetermined":
         return "undetermined"
+    if (verdict.evidence or {}).get("stage") == "learned":  # the default profile: one stage
+        return "learned: protected" if verdict.protected else "learned: clean"
     if reason.startswith("first stage"):
         return "first stage"
     if verdict.protected:

@@ -80,7 +80,7 @@ def learned_figure(source, verdict, config):
     hits = np.argwhere(grid_logits >= thr)
     ax_units.scatter(hits[:, 1], hits[:, 0], marker="x", color="cyan", s=20,
                      label=f"logit >= threshold {thr:.2f}")
-    row_labels = [f"{ax} rows {a:.0%}-{z:.0%}" for ax in dict.fromkeys(rec.spectra.axes)
+    row_labels = [f"{ax}, lines {a:.0%}-{z:.0%}" for ax in dict.fromkeys(rec.spectra.axes)
                   for a, z in ROW_WINDOWS]
     ax_units.set_yticks(range(len(row_labels)), row_labels, fontsize=6)
     ax_units.set_xticks(range(n_c), [f"{a:.0%}-{z:.0%}" for a, z in COL_WINDOWS], fontsize=7)

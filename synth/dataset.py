@@ -729,9 +729,10 @@ def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
 def demo_images(out_dir: str | Path, *, seed: int = 0) -> tuple[Path, Path]:
     """Write one protected and one clean 1080p JPEG of the same scene (for ``make run``).
 
-    The protected capture is ``table1-seq1`` (400/600/800 Hz, f_B = 400 Hz) at 60 kHz row rate
-    and 1/2000 s exposure, full coverage, no ambient light, JPEG quality 90; the clean one is
-    the same camera under steady light.
+    The protected capture is ``table2-rgb`` (an RGB LED: 400/600/800 Hz red, 1000/1200/1400 Hz
+    green, 1600/1800/2000 Hz blue) switched at f_B = 200 Hz, the paper's evaluation setting
+    (Sec. 7.3), at 60 kHz row rate and 1/2000 s exposure, full coverage, no ambient light, JPEG
+    quality 90; the clean one is the same camera under steady light.
 
     Parameters
     ----------
@@ -755,8 +756,8 @@ def demo_images(out_dir: str | Path, *, seed: int = 0) -> tuple[Path, Path]:
             "rotation_deg": 0, "rotation_mode": "none", "frame_start_s": 0.0123,
             "scene_seed": int(seed), "noise_seed": int(seed) + 1, "scene_kind": "photo",
             "scene_name": "skimage:astronaut", "noise": True}
-    pos = dict(base, kind="barcode", preset="table1-seq1",
-               light={"kind": "led", "preset": "table1-seq1", "switching_hz": 400.0})
+    pos = dict(base, kind="barcode", preset="table2-rgb",
+               light={"kind": "led", "preset": "table2-rgb", "switching_hz": 200.0})
     neg = dict(base, label=0, kind="steady", light={"kind": "steady"})
     paths = []
     for name, p in (("protected.jpg", pos), ("clean.jpg", neg)):

@@ -74,7 +74,10 @@ def _describe(v, label: str, *, explain: bool) -> str:
     else:
         lines.append(f"{label}: clean, not protected (no policy barcode found)")
     stage = ev.get("stage")
-    if v.profile == "default" and v.protected and stage not in (None, "tones"):
+    if stage == "learned":
+        counts = (f"decision logit {ev.get('logit')} "
+                  f"{'>=' if v.protected else '<'} threshold {ev.get('threshold_logit'):.3g}")
+    elif v.profile == "cascade" and v.protected and stage not in (None, "tones"):
         counts = f"{v.matches}/{v.required} pattern fit ({stage})"
     else:
         unit = "ratios" if v.profile == "paper" else "tones"
@@ -91,13 +94,38 @@ def _describe(v, label: str, *, explain: bool) -> str:
     total = sum(t.values())
     lines.append("  timings: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in t.items())
                  + f" (total {total:.1f} ms)")
-    if explain:
+    if explain and isinstance(ev.get("physics"), dict):
+        ph = ev["physics"]
+        lines.append(f"  physics (cascade profile, on request): "
+                     f"{'explains it' if ph['protected'] else 'no pattern fit passes'}: "
+                     f"{ph['reason']} ({sum(ph['timings_ms'].values()):.0f} ms)")
+        lines += _explain_best(ph.get("best"))
+    elif explain:
         lines += _explain_best(ev.get("best"))
         lines += _explain_candidates(ev.get("candidates", []), reason)
         if "frequencies_hz" in ev:
             lines.append("  peak frequencies (Hz at nominal row rate): "
                          + ", ".join(f"{f:g}" for f in ev["frequencies_hz"]))
     return "\n".join(lines)
+
+
+def _with_physics(verdict, source, cfg):
+    """A flagged default-profile verdict with the cascade's pattern search and exact capture-
+    model fit on the same image attached as ``evidence["physics"]`` (its reason, stage and
+    best fit): the explanation ``--explain`` asks for, run only on flagged images and outside
+    the verdict's bounded cost."""
+    import dataclasses
+
+    from lishield_guard.config import AppConfig
+    from lishield_guard.detector import detect
+
+    cascade = AppConfig(detector=cfg.detector.replace(profile="cascade"), limits=cfg.limits,
+                        policies=cfg.policies, source=cfg.source)
+    c = detect(source, cascade)
+    physics = {"profile": "cascade", "protected": c.protected,
+               "reason": c.evidence.get("reason"), "stage": c.evidence.get("stage"),
+               "best": c.evidence.get("best"), "timings_ms": c.timings_ms}
+    return dataclasses.replace(verdict, evidence={**verdict.evidence, "physics": physics})
 
 
 def _explain_best(best: dict | None) -> list[str]:
@@ -244,6 +272,8 @@ def detect_command(
             continue
         try:
             verdict = detect(source, cfg)
+            if explain and verdict.protected and verdict.profile == "default":
+                verdict = _with_physics(verdict, source, cfg)
         except LishieldError as exc:
             codes.append(_input_error(label, str(exc), exc.code))  # never clean
             continue

@@ -7,7 +7,8 @@ template is slid along the log-frequency axis (every scale the grid holds) and s
 mean whitened log power at its tones. A white (mono) spec's tones must show in every colour
 plane (its score takes the weakest plane), an RGB spec's tones in their own plane well above
 the other planes (`RGB_MARGIN`): a white light shows every tone in every plane, an RGB one
-each tone in one plane, so neither kind of spec can claim the other kind's capture. Work: specs x tones x grid bins, whatever the image.
+each tone in one plane, so neither kind of spec can claim the other kind's capture. Work:
+specs x tones x grid bins, whatever the image.
 """
 
 from __future__ import annotations

@@ -34,7 +34,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
 from lishield_guard.config import FIT_RHO_FLOOR
 from lishield_guard.detector.emitters import cycles_range, phase_mode
@@ -287,6 +286,8 @@ def _corr(t: np.ndarray, y: np.ndarray, yy: float) -> float:
 
 def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray, *, max_evals: int = 0
                  ) -> tuple[float, np.ndarray]:
+    from scipy.optimize import minimize  # lazy: the default profile never fits
+
     simplex = np.vstack([x0] + [x0 + np.diag(steps)[k] for k in range(x0.size)])
     res = minimize(fun, x0, method="Nelder-Mead",
                    options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5,

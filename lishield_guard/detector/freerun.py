@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
-from scipy.signal import find_peaks
 
 __all__ = ["FreeStart", "free_running_starts"]
 
@@ -78,6 +77,8 @@ def _k1_hypotheses(x: np.ndarray, rel: np.ndarray, k1_range: tuple[float, float]
                    ) -> list[float]:
     """k_1 values (cycles per row) that put one of the spec's tones on one of the rows'
     `PEAKS` strongest spectral peaks, with `K_OFFSETS` fine steps around each."""
+    from scipy.signal import find_peaks
+
     n = x.size
     nfft = 1 << int(math.ceil(math.log2(4 * n)))
     power = np.abs(scipy.fft.rfft(x * np.hanning(n), nfft)) ** 2

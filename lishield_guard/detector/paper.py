@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import detrend
 
 from lishield_guard.config import DetectorConfig, Policy
 from lishield_guard.spec import BarcodeSpec
@@ -20,6 +19,8 @@ def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
     (M_p) largest local maxima with ``band_hz[0] <= f <= band_hz[1]``, where bin k of a block
     of L rows is at k * nominal_row_rate_hz / L Hz.
     """
+    from scipy.signal import detrend
+
     n_rows, n_cols = plane.shape
     lo_hz, hi_hz = config.paper.band_hz
     row_cuts = np.linspace(0, n_rows, config.paper.n_block_rows + 1).round().astype(int)

@@ -183,7 +183,8 @@ def _detect_learned(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     with timer("explain"):
         evidence = learned_evidence(rec, specs, det)
     protected = bool(rule(rec.logit, det))
-    skipped.append("exact capture-model fit: on request (detect --explain, the reviewer page)")
+    skipped.append("pattern search and exact capture-model fit: not part of the decision "
+                   "(`detect --explain` runs them on a flagged image; profile cascade)")
     return Verdict(protected=protected, policy=evidence["policy"] if protected else None,
                    matches=int(protected), required=1, evidence=evidence,
                    skipped=tuple(skipped), timings_ms=timer.ms, profile="default",
@@ -210,8 +211,7 @@ def learned_evidence(rec: DecisionRecord, specs: list[tuple[str, BarcodeSpec]],
         tones = "; ".join(f"{c}: " + ", ".join(f"{v:.4f}" for v in vs)
                           for c, vs in best_fit.tones_cpr.items())
         leak = "" if best_fit.leak is None else (
-            f"; its tones stand {best_fit.score:.1f} above their level in the other colour "
-            f"planes (leak {best_fit.leak:.1f})")
+            f"; the same tones' level in the other colour planes {best_fit.leak:.1f}")
         reason = (f"barcode: decision logit {rec.logit:.2f} >= threshold {thr:.2f} ({where}); "
                   f"best explained by {best_fit.spec} of policy {policy}, tones at {tones} "
                   f"cycles/row (template score {best_fit.score:.1f}){leak}")

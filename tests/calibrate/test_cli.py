@@ -26,7 +26,8 @@ def calibrated(tiny_sets):
     out, rep = root / "cal.toml", root / "report"
     args = [EXE, "calibrate", "--clean", str(tiny_sets["neg"]), "--certify",
             str(tiny_sets["noise"]), "--positives", str(tiny_sets["pos"]), "--target-far",
-            "0.7", "--out", str(out), "--report", str(rep), "--jobs", "2", "--no-progress"]
+            "0.7", "--out", str(out), "--report", str(rep), "--jobs", "2", "--no-progress",
+            "--profiles", "cascade,paper"]
     key = _code_key()
     first = subprocess.run(args, capture_output=True, text=True, timeout=600)
     second = subprocess.run(args, capture_output=True, text=True, timeout=600)  # from cache
@@ -63,7 +64,8 @@ def test_unmet_target_exits_3(tiny_sets, calibrated):
     r = subprocess.run([EXE, "calibrate", "--clean", str(tiny_sets["neg"]), "--clean",
                         str(tiny_sets["noise"]), "--positives", str(tiny_sets["pos"]),
                         "--target-far", "0.001", "--out", str(root / "unmet.toml"), "--report",
-                        str(root / "report"), "--no-progress", "-j", "2"],
+                        str(root / "report"), "--no-progress", "-j", "2", "--profiles",
+                        "cascade,paper"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 3, r.stderr
     assert "needs >= 2995" in r.stderr and "NOT MET" in r.stdout
@@ -86,7 +88,8 @@ def test_tuning_claim_not_met_on_certification(tiny_sets, calibrated):
     r = subprocess.run([EXE, "calibrate", "--clean", str(tiny_sets["neg"]), "--certify",
                         str(held_out), "--positives", str(tiny_sets["pos"]), "--target-far",
                         "0.7", "--out", str(out), "--report", str(root / "report"),
-                        "--no-progress", "-j", "2"], capture_output=True, text=True, timeout=600)
+                        "--no-progress", "-j", "2", "--profiles", "cascade,paper"],
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 3, r.stdout + r.stderr
     cert = json.loads((root / "report" / "certification.json").read_text())
     assert cert["tune_met"] and cert["parts"]["tuning"]["far_upper"] <= 0.7
@@ -95,6 +98,38 @@ def test_tuning_claim_not_met_on_certification(tiny_sets, calibrated):
     summary = (root / "report" / "summary.md").read_text()
     assert "selection on the tuning part claims a target that the certification part does " \
            "not show" in summary
+
+
+def test_the_learned_threshold_is_chosen_and_certified(tiny_sets):
+    """The default profile's calibration sweeps one number, ``learned.threshold_logit``: one
+    measurement per image, the threshold chosen on the tuning part at or above the tail rule's
+    floor, certified once on the held-out folder; the config it writes runs the default
+    profile at that threshold."""
+    import numpy as np
+
+    from lishield_guard.calibrate import LearnedGrid, tail_threshold
+
+    root = tiny_sets["root"]
+    out, rep = root / "learned.toml", root / "learned-report"
+    r = subprocess.run([EXE, "calibrate", "--clean", str(tiny_sets["neg"]), "--certify",
+                        str(tiny_sets["noise"]), "--positives", str(tiny_sets["pos"]),
+                        "--target-far", "0.7", "--out", str(out), "--report", str(rep),
+                        "--no-progress", "-j", "2"], capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode in (0, 3), r.stderr
+    det = load_config(out).detector
+    assert det.profile == "default"
+    cert = json.loads((rep / "certification.json").read_text())
+    assert cert["parts"]["certification"]["n_clean"] == 3
+    assert "learned.threshold_logit" in load_config(out).header
+    assert list((rep / "cache").glob("lrn-*.pkl"))
+    assert not list((rep / "cache").glob(f"{EVIDENCE_PREFIX}*.pkl"))  # no pattern search
+    from lishield_guard import detect
+
+    cfg = load_config(out)
+    logits = [detect(p, cfg).evidence["logit"] for p in sorted(tiny_sets["neg"].glob("*.jpg"))]
+    assert max(logits) < det.learned.threshold_logit  # the tuning part: no false alarm
+    assert det.learned.threshold_logit >= tail_threshold(np.array(logits), 0.7, LearnedGrid())
 
 
 def test_scan_accepts_config(calibrated, tiny_sets):

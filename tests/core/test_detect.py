@@ -19,8 +19,10 @@ PAPER = DetectorConfig(profile="paper")
 @pytest.mark.parametrize("name, switching_hz", [
     ("table1-seq1", 260.0), ("table1-seq2", 200.0), ("table1-seq2", 300.0),
 ])
-def test_default_profile_finds_mono_barcodes(make_led_image, name, switching_hz):
-    v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz))
+def test_cascade_finds_mono_barcodes(make_led_image, name, switching_hz):
+    """The cascade's known answers (the default profile's are in test_learned.py; monochrome
+    barcodes are its weak side: docs/training.md)."""
+    v = detect_cascade(make_led_image(PRESETS[name], switching_hz=switching_hz))
     assert v.protected, v.evidence["reason"]
     assert v.policy == "no-distribution"
     assert v.matches >= v.required
@@ -43,10 +45,11 @@ def test_period_sweep_finds_a_frame_under_two_periods(make_led_image, name, swit
 
 
 def test_rotated_pixels_still_detected(make_led_image):
-    img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, jpeg=None)
-    v = detect(np.rot90(img).copy())
+    rgb = make_led_image(PRESETS["table2-rgb"], switching_hz=200.0, jpeg=None)
+    v = detect(np.rot90(rgb).copy())
     assert v.protected, v.evidence["reason"]
     assert v.evidence["axis"] == "columns"
+    img = make_led_image(PRESETS["table1-seq2"], switching_hz=200.0, jpeg=None)
     c = detect_cascade(np.rot90(img).copy())
     assert c.protected
     assert c.evidence["candidates"][0]["axis"] == "columns" or any(
@@ -205,7 +208,7 @@ def test_default_profile_beats_paper_on_clean_photos():
 def test_verdict_contract_is_json_ready(make_led_image):
     """The verdict's dict carries the values of the Verdict, survives strict JSON, and drops
     the evidence only when asked."""
-    v = detect(make_led_image(PRESETS["table1-seq2"], switching_hz=200.0))
+    v = detect(make_led_image(PRESETS["table2-rgb"], switching_hz=200.0))
     assert type(v) is Verdict
     d = v.to_dict()
     assert (d["protected"], d["policy"], d["status"]) == (True, "no-distribution", "protected")

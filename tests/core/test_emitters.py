@@ -6,8 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
+from cascade import detect_cascade
 
-from lishield_guard import PRESETS, detect
+from lishield_guard import PRESETS
 from lishield_guard.detector.emitters import MIN_SWITCHING_HZ, cycles_range, emitter_variants
 
 
@@ -30,21 +31,21 @@ def test_switching_range_reaches_below_the_papers_200_hz():
 # compliant LEDs and vetoed these tone tracks.
 @pytest.mark.parametrize("name", ["table1-seq1", "table1-seq3"])
 def test_200_hz_switching_is_detected(make_led_image, name):
-    v = detect(make_led_image(PRESETS[name], switching_hz=200.0))
+    v = detect_cascade(make_led_image(PRESETS[name], switching_hz=200.0))
     assert v.protected, v.evidence["reason"]
     assert v.policy == "no-distribution"
 
 
 def test_reversed_slot_order_is_detected(make_led_image):
     spec = replace(PRESETS["table1-seq2"], order=(2, 1, 0))
-    v = detect(make_led_image(spec, switching_hz=300.0))
+    v = detect_cascade(make_led_image(spec, switching_hz=300.0))
     assert v.protected, v.evidence["reason"]
 
 
 def test_tones_running_on_across_slots_are_detected(make_led_image):
     # free-running timers: 600 Hz holds 2.4 cycles per 250 Hz slot, so its phase at each
     # slot start differs and the pattern does not repeat for 5 patterns
-    v = detect(make_led_image(PRESETS["table1-seq1"], switching_hz=250.0, phase="free"))
+    v = detect_cascade(make_led_image(PRESETS["table1-seq1"], switching_hz=250.0, phase="free"))
     assert v.protected, v.evidence["reason"]
 
 
@@ -56,6 +57,7 @@ def test_tones_running_on_across_slots_are_detected(make_led_image):
                          [("table1-seq3", 1526.0, 100_000.0), ("table1-seq1", 320.0, 60_000.0)])
 def test_free_running_tones_lead_the_fit_to_their_period(make_led_image, name, switching_hz,
                                                          row_rate_hz):
-    v = detect(make_led_image(PRESETS[name], switching_hz=switching_hz, row_rate_hz=row_rate_hz,
-                              exposure_s=1 / 8000, phase="free"))
+    v = detect_cascade(make_led_image(PRESETS[name], switching_hz=switching_hz,
+                                      row_rate_hz=row_rate_hz, exposure_s=1 / 8000,
+                                      phase="free"))
     assert v.protected, v.evidence["reason"]

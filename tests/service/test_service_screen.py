@@ -50,7 +50,8 @@ def test_explain_and_request_id(client, demo_pair):
     assert r.status_code == 200
     want = lishield_guard.detect(demo_pair[0].read_bytes()).to_dict()["evidence"]
     assert r.json()["evidence"]["reason"] == want["reason"]
-    assert r.json()["evidence"]["best"]["spec"] == want["best"]["spec"]
+    assert r.json()["evidence"]["spec_fit"]["spec"] == want["spec_fit"]["spec"]
+    assert r.json()["evidence"]["logit"] == want["logit"]
     assert r.json()["request_id"] == "upload-42" == r.headers["x-request-id"]
 
 
