@@ -566,7 +566,8 @@ def _make_light(p: dict):
 
         spec = dataclasses.replace(get_preset(lt["preset"]), switching_hz=lt["switching_hz"],
                                    phase=lt.get("phase", "restart"),
-                                   order=tuple(lt.get("order") or ()) or "cyclic")
+                                   order=tuple(lt.get("order") or ()) or "cyclic",
+                                   **({"duty": lt["duty"]} if "duty" in lt else {}))
         with warnings.catch_warnings():  # f_B = 200 Hz breaks our flicker rule, on purpose
             warnings.simplefilter("ignore", SpecWarning)
             seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW,

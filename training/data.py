@@ -33,7 +33,6 @@ import dataclasses
 import functools
 import io
 import math
-import warnings
 from pathlib import Path
 
 import cv2
@@ -42,7 +41,7 @@ import numpy as np
 from lishield_guard.camera import CameraModel
 from lishield_guard.decode import decode
 from lishield_guard.detector.spectra import image_input
-from lishield_guard.spec import SpecWarning, get_preset
+from lishield_guard.spec import get_preset
 
 __all__ = ["DEFAULT_BANK", "MONO_PRESETS", "RGB_PRESETS", "example", "sample_example",
            "scene_bank"]
@@ -50,7 +49,6 @@ __all__ = ["DEFAULT_BANK", "MONO_PRESETS", "RGB_PRESETS", "example", "sample_exa
 MONO_PRESETS = ("table1-seq1", "table1-seq2", "table1-seq3")
 RGB_PRESETS = ("table2-rgb",)
 DEFAULT_BANK = Path("out/scenebank")
-LED_CLOCK_HZ = 16_000_000
 NEG_KINDS = ("steady", "mains", "pwm", "two-lights", "texture")
 NEG_PROBS = (0.22, 0.2, 0.3, 0.1, 0.18)
 MAX_DECODE_ROWS = 768  # the shipped detector's profiles.max_decode_rows
@@ -219,24 +217,10 @@ class SumLight:
 
 
 def _make_light(d: dict):
-    from synth.light import MainsFlicker, PwmLight, SequenceLight, SteadyLight
+    """The light of one description (`synth.dataset`'s, which also takes ``duty``)."""
+    from synth.dataset import _make_light as make
 
-    if d["kind"] == "led":
-        from firmware.sequence import compile_spec
-
-        spec = dataclasses.replace(get_preset(d["preset"]), switching_hz=d["switching_hz"],
-                                   phase=d["phase"], order=tuple(d["order"]), duty=d["duty"])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SpecWarning)
-            seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=("flicker", "switching"),
-                               n_patterns=int(d["loop_patterns"]))
-        return SequenceLight(seq, rise_s=float(d["rise_s"]))
-    if d["kind"] == "mains":
-        return MainsFlicker(supply_hz=d["supply_hz"], depth=d["depth"], phase_s=d["phase_s"])
-    if d["kind"] == "pwm":
-        return PwmLight(freq_hz=d["freq_hz"], duty=d["duty"], depth=d["depth"],
-                        phase_s=d["phase_s"])
-    return SteadyLight()
+    return make({"light": d})
 
 
 def _coverage(c: dict | None, n_rows: int, n_cols: int) -> np.ndarray | None:

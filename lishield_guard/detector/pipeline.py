@@ -52,10 +52,11 @@ from lishield_guard.detector.rules import (
     tone_fit_confirms,
 )
 from lishield_guard.detector.screen import jpeg_grid_cpr, screen_plane
+from lishield_guard.detector.spectra import axis_too_small
 from lishield_guard.detector.sweep import sweep_match
 from lishield_guard.detector.tones import SpecMatch, match_spec, scale_range_cpr_per_hz
 from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
-from lishield_guard.detector.usable import unusable_reason
+from lishield_guard.detector.usable import full_scale_of, unusable_reason
 from lishield_guard.spec import BarcodeSpec
 from lishield_guard.verdict import Verdict
 
@@ -243,15 +244,6 @@ def _row_siblings(rec: DecisionRecord, window: int) -> list[int]:
     return [window, *same]
 
 
-def _full_scale(plane: np.ndarray) -> float:
-    if plane.dtype == np.uint8:
-        return 255.0
-    if plane.dtype == np.uint16:
-        return 65535.0
-    top = float(np.max(plane)) if plane.size else 0.0
-    return top if top > 0 else 1.0
-
-
 def _detect_paper(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdict:
     PAPER_MIN_BLOCK_ROWS = 4  # noqa: N806 - paper.block_peaks_hz skips shorter blocks
     det = config.detector
@@ -305,7 +297,7 @@ def analyse_plane(plane: np.ndarray, axis: int, config: AppConfig,
                             FIT_SUB_BLOCKS)
     n_rows = profiles.shape[1]
     sigma = min(0.5 / lo if lo > 0 else n_rows, n_rows / 6.0)
-    return analyse_profiles(profiles, full_scale=_full_scale(plane), band_cpr=(lo, hi),
+    return analyse_profiles(profiles, full_scale=full_scale_of(plane), band_cpr=(lo, hi),
                             trend_sigma_rows=sigma, false_prob=det.tones.peak_false_prob,
                             fine_profiles=fine)
 
@@ -695,13 +687,9 @@ def _fold_info(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], periods: list
 
 
 def _too_small(shape: tuple[int, ...], axis: int) -> str | None:
-    """Why the luma plane of ``shape`` cannot be analysed along ``axis`` (None: it can)."""
-    lines, across = shape[axis], shape[1 - axis]
-    if lines < MIN_ROWS:
-        return f"only {lines} < {MIN_ROWS} lines"
-    if across < MIN_ACROSS:
-        return f"lines only {across} < {MIN_ACROSS} pixels long"
-    return None
+    """Why the luma plane of ``shape`` cannot be analysed along ``axis`` (None: it can); the
+    same size rule as the default profile's (`spectra.axis_too_small`)."""
+    return axis_too_small(shape, axis)
 
 
 def _analysed_axes(decoded: Decoded, config: AppConfig, timer: _Timer, skipped: list[str]):

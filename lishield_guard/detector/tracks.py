@@ -32,6 +32,7 @@ import scipy.fft
 from scipy.ndimage import uniform_filter1d
 
 from lishield_guard.detector.profiles import detrend_profiles
+from lishield_guard.detector.usable import usable_blocks
 
 __all__ = ["PlaneAnalysis", "Track", "analyse_profiles", "frequency_tracks", "part_tracks",
            "peak_threshold"]
@@ -146,21 +147,6 @@ class PlaneAnalysis:
         return replace(self, tracks=tracks, fine_blocks=self.fit_blocks, fine_profiles=None)
 
 
-def _usable_blocks(profiles: np.ndarray, full_scale: float) -> tuple[np.ndarray, list[str]]:
-    means = profiles.mean(axis=1)
-    black = means < 0.02 * full_scale
-    saturated = means > 0.98 * full_scale
-    spread = profiles.max(axis=1) - profiles.min(axis=1)
-    flat = spread <= 1e-6 * max(full_scale, 1e-12)
-    keep = ~(black | saturated | flat)
-    notes = []
-    for name, mask in (("black", black), ("saturated", saturated),
-                       ("flat", flat & ~black & ~saturated)):
-        if mask.any():
-            notes.append(f"{int(mask.sum())} {name} column block(s)")
-    return keep, notes
-
-
 def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple[float, float],
                      trend_sigma_rows: float, false_prob: float,
                      fine_profiles: np.ndarray | None = None) -> PlaneAnalysis:
@@ -182,7 +168,7 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
         Row means of narrower sub-blocks; their usable ones are kept as ``fine_blocks``.
     """
     n_blocks, n_rows = profiles.shape
-    keep, skipped = _usable_blocks(profiles, full_scale)
+    keep, skipped = usable_blocks(profiles, full_scale=full_scale)
     if keep.sum() < 2:
         return PlaneAnalysis(n_rows, int(keep.sum()), (), tuple(skipped) +
                              ("fewer than 2 usable column blocks: no coherence test possible",))
@@ -194,7 +180,7 @@ def analyse_profiles(profiles: np.ndarray, *, full_scale: float, band_cpr: tuple
     common, tracks = frequency_tracks(contrast, band_cpr=band, false_prob=false_prob)
     fine = None
     if fine_profiles is not None:
-        fine_keep, _ = _usable_blocks(fine_profiles, full_scale)
+        fine_keep, _ = usable_blocks(fine_profiles, full_scale=full_scale)
         if fine_keep.sum() >= 2:
             fine = fine_profiles[fine_keep]
     return PlaneAnalysis(n_rows, nb, tracks, tuple(skipped), common.astype(np.float32),
