@@ -182,3 +182,16 @@ def test_scores_do_not_depend_on_the_model_path_taken(make_led_image):
                            __import__("lishield_guard").decode(img, want_rgb=True).rgb(),
                            cfg.detector)
     assert np.isfinite(score_windows(rec.spectra.x, shipped_model())).all()
+
+
+def test_the_figure_of_a_learned_verdict_shows_what_decided(make_led_image, tmp_path):
+    from lishield_guard.plot import figure_caption, plot_verdict, verdict_title
+
+    img = make_led_image(PRESETS["table2-rgb"], switching_hz=200.0)
+    cfg = default_config()
+    v = detect(img, cfg)
+    assert v.protected
+    out = plot_verdict(img, v, cfg, tmp_path / "v.png")
+    assert out.stat().st_size > 20_000
+    assert figure_caption(v).startswith("Top: the network's logit for every window")
+    assert "table2-rgb" in verdict_title(v)
