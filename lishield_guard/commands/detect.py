@@ -25,6 +25,7 @@ class Profile(StrEnum):
     """Detector profiles (`DetectorConfig.profile`)."""
 
     default = "default"
+    cascade = "cascade"
     paper = "paper"
 
 
@@ -183,9 +184,10 @@ def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path
     return _plot(source, verdict, config, out_png)
 
 
-PROFILE_HELP = ("default: the calibrated detector (use this). paper: the paper's Algorithm 1 "
-                "as published, a reference for comparisons that flags about 95 % of photos taken "
-                "under ordinary flickering light; not a production choice.")
+PROFILE_HELP = ("default: the calibrated learned decision, fixed cost per image (use this). "
+                "cascade: the pattern search, better on white (monochrome) LEDs but seconds per "
+                "striped photo. paper: the paper's Algorithm 1 as published, a reference that "
+                "flags about 95 % of photos taken under ordinary flickering light.")
 
 
 def _exit_code(verdict) -> ExitCode:

@@ -106,7 +106,8 @@ def scan_command(
     scheduler: str | None = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
                                          help="Run on an existing Dask scheduler."),
     config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
-    profile: str | None = typer.Option(None, "--profile", help="Detector profile: default|paper."),
+    profile: str | None = typer.Option(None, "--profile",
+                                       help="Detector profile: default|cascade|paper."),
     progress: bool | None = typer.Option(None, "--progress/--no-progress",
                                          help="Progress bar on stderr (default: when stderr "
                                          "is a terminal)."),

@@ -783,7 +783,7 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
                    + "; ".join(skipped) + ")" if skipped else "nothing analysable")
         return Verdict(False, None, 0, config.detector.tones.min_tones,
                        evidence={"reason": why, "candidates": []},
-                       skipped=tuple(skipped), timings_ms=timings, profile="default",
+                       skipped=tuple(skipped), timings_ms=timings, profile="cascade",
                        undetermined=why)
     axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
     # the evidence lists MAX_CANDIDATES: most tones first, then those the search looked at
@@ -798,7 +798,7 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
     return Verdict(protected=m.protected, policy=pid if m.protected else None,
                    matches=1 if pattern else m.n_matched, required=1 if pattern else m.required,
                    evidence=evidence,
-                   skipped=tuple(skipped), timings_ms=timings, profile="default",
+                   skipped=tuple(skipped), timings_ms=timings, profile="cascade",
                    score=m.score)
 
 
@@ -814,7 +814,7 @@ def _detect_cascade(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     if why is not None:
         return Verdict(False, None, 0, det.tones.min_tones,
                        evidence={"reason": why, "candidates": []}, timings_ms=timer.ms,
-                       profile="default", undetermined=why)
+                       profile="cascade", undetermined=why)
     skipped: list[str] = []
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "

@@ -103,7 +103,7 @@ def test_version_and_help_teach(run_cli):
         assert "<bool>" not in out, cmd
         assert "Examples:" in out, cmd
     out = run_cli("detect", "--help").output
-    assert "<default|paper>" in out and "production" in out
+    assert "<default|cascade|paper>" in out and "(use this)" in out
 
 
 def test_plot_reads_evidence_defensively(tmp_path):
