@@ -11,19 +11,14 @@ size whatever the image shows.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 
 from lishield_guard.config import DetectorConfig
 from lishield_guard.detector.learned import DecisionModel, load_model, score_windows, shipped_model
-from lishield_guard.detector.spectra import (
-    AXIS_NAMES,
-    SpectralInput,
-    axes_input,
-    axis_too_small,
-    block_profiles_rgb,
-)
-from lishield_guard.detector.usable import MIN_USABLE_BLOCKS, full_scale_of, usable_blocks
+from lishield_guard.detector.spectra import AXIS_NAMES, SpectralInput, analysable, axes_input
+from lishield_guard.detector.usable import MIN_USABLE_BLOCKS
 
 __all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "window_label"]
 
@@ -76,17 +71,14 @@ def decision_model(det: DetectorConfig) -> DecisionModel:
     return shipped_model() if det.learned.model is None else _load(det.learned.model)
 
 
-_CACHE: dict[str, DecisionModel] = {}
-
-
+@cache
 def _load(path: str) -> DecisionModel:
-    if path not in _CACHE:
-        _CACHE[path] = load_model(path)
-    return _CACHE[path]
+    return load_model(path)
 
 
 def window_label(spectra: SpectralInput, index: int) -> str:
-    """Where window ``index`` lies, in words (``"rows; columns 25-75 %, rows 0-50 %"``)."""
+    """Where window ``index`` lies, in words (``"stripes along rows; columns 25%-75%, rows
+    0%-50%"``)."""
     c0, c1, r0, r1 = spectra.windows[index]
     across = "columns" if spectra.axes[index] == "rows" else "rows"
     along = "rows" if spectra.axes[index] == "rows" else "columns"
@@ -114,25 +106,20 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
         range, clipped, fewer than `usable.MIN_USABLE_BLOCKS` usable column blocks).
     """
     axes = (0, 1) if det.profiles.orientations == "both" else (0,)
-    skipped = tuple(f"{AXIS_NAMES[a]}: {why}" for a in axes
-                    if (why := axis_too_small(pixels.shape, a)) is not None)
-    ok = tuple(a for a in axes if axis_too_small(pixels.shape, a) is None)
-    if not ok:
+    a = analysable(pixels, axes)
+    if not a["profiles"]:
         return DecisionRecord(np.zeros(0, np.float32), axes_input({}, full_scale=1.0),
-                              "image too small: " + "; ".join(skipped))
-    scale = full_scale_of(pixels)
-    usable, keep, notes = {}, {}, []
-    for axis, prof in block_profiles_rgb(pixels, axes=ok).items():
-        keep[axis], why = usable_blocks(prof.mean(axis=0), full_scale=scale)
-        if why:
-            notes.append(f"{AXIS_NAMES[axis]}: " + ", ".join(why))
-        if int(keep[axis].sum()) >= MIN_USABLE_BLOCKS:
-            usable[axis] = prof
-    spectra = axes_input(usable, full_scale=scale, skipped=skipped, keep=keep)
+                              "image too small: " + "; ".join(a["skipped"]))
+    notes = tuple(f"{AXIS_NAMES[ax]}: " + ", ".join(why) for ax, why in a["notes"].items()
+                  if why)
+    usable = {ax: p for ax, p in a["profiles"].items()
+              if int(a["keep"][ax].sum()) >= MIN_USABLE_BLOCKS}
+    spectra = axes_input(usable, full_scale=a["full_scale"], skipped=a["skipped"],
+                         keep=a["keep"])
     if not usable:
         lo, hi = float(np.min(pixels)), float(np.max(pixels))
         why = (f"no dynamic range: every pixel is {lo:g}" if lo == hi else
                f"too few usable column blocks on every analysed axis ({'; '.join(notes)})")
-        return DecisionRecord(np.zeros(0, np.float32), spectra, why, tuple(notes))
+        return DecisionRecord(np.zeros(0, np.float32), spectra, why, notes)
     logits = score_windows(spectra.x, model or decision_model(det))
-    return DecisionRecord(logits, spectra, None, tuple(notes))
+    return DecisionRecord(logits, spectra, None, notes)

@@ -40,7 +40,7 @@ import numpy as np
 
 __all__ = ["AXIS_NAMES", "CHANNELS", "COL_WINDOWS", "INPUT_VERSION", "MIN_ACROSS", "MIN_LINES",
            "N_BLOCKS", "N_FREQ", "ROW_WINDOWS", "SpectralInput", "axes_input", "axis_too_small",
-           "block_profiles_rgb", "freq_grid_cpr", "image_input", "usable_mask", "window_spectra"]
+           "analysable", "block_profiles_rgb", "freq_grid_cpr", "image_input", "window_spectra"]
 
 #: Changes whenever the representation changes; a model card must name the same version.
 INPUT_VERSION = "logf-windows-v1"
@@ -48,7 +48,7 @@ N_BLOCKS = 32  # column blocks per axis
 BINS_PER_OCTAVE = 24
 N_FREQ = 192  # 8 octaves: (0.5 / 256, 0.5] cycles per row
 F_MAX_CPR = 0.5
-FLOOR_OCTAVES = 1.0  # width of the running median that estimates the noise floor
+FLOOR_OCTAVES = 1.0  # width of the geometric mean that estimates a block's noise floor
 MIN_LINES = 64  # an axis needs at least this many lines ...
 MIN_ACROSS = 64  # ... each at least this many pixels long
 #: Column windows as (start, end) fractions of the line length (whole blocks).
@@ -292,9 +292,34 @@ def axes_input(profiles: dict[int, np.ndarray], *, full_scale: float,
     return SpectralInput(x, tuple(names), tuple(windows), n_lines, tuple(skipped))
 
 
+def analysable(pixels: np.ndarray, axes: tuple[int, ...] = (0, 1)) -> dict:
+    """The profiles of every axis of an image that is large enough, and which of their blocks
+    can show stripes.
+
+    Returns
+    -------
+    dict
+        ``skipped`` (axes too small, and why), ``profiles`` (axis -> `block_profiles_rgb`),
+        ``keep`` (axis -> usable blocks, `usable.usable_blocks` of the colours' mean),
+        ``notes`` (axis -> why blocks were left out) and ``full_scale`` (the value of white).
+    """
+    from lishield_guard.detector.usable import full_scale_of, usable_blocks
+
+    skipped = tuple(f"{AXIS_NAMES[a]}: {why}" for a in axes
+                    if (why := axis_too_small(pixels.shape, a)) is not None)
+    ok = tuple(a for a in axes if axis_too_small(pixels.shape, a) is None)
+    full = full_scale_of(pixels)
+    profiles = block_profiles_rgb(pixels, axes=ok) if ok else {}
+    keep, notes = {}, {}
+    for a, p in profiles.items():
+        keep[a], notes[a] = usable_blocks(p.mean(axis=0), full_scale=full)
+    return {"skipped": skipped, "profiles": profiles, "keep": keep, "notes": notes,
+            "full_scale": full}
+
+
 def image_input(rgb: np.ndarray, *, axes: tuple[int, ...] = (0, 1)) -> SpectralInput:
-    """`axes_input` of every axis of an image that is large enough (no usable-block check:
-    training data, whose frames always have usable blocks).
+    """`axes_input` of every axis of an image that is large enough (`analysable`), usable or
+    not: training data, whose input always has every window.
 
     Parameters
     ----------
@@ -303,18 +328,6 @@ def image_input(rgb: np.ndarray, *, axes: tuple[int, ...] = (0, 1)) -> SpectralI
     axes : tuple of {0, 1}
         Axes to analyse: 0 the stored rows, 1 the stored columns (a rotation baked in).
     """
-    skipped = tuple(f"{AXIS_NAMES[a]}: {why}" for a in axes
-                    if (why := axis_too_small(rgb.shape, a)) is not None)
-    ok = tuple(a for a in axes if axis_too_small(rgb.shape, a) is None)
-    full = float(np.iinfo(rgb.dtype).max) if rgb.dtype.kind in "ui" else 1.0
-    profiles = block_profiles_rgb(rgb, axes=ok) if ok else {}
-    return axes_input(profiles, full_scale=full, skipped=skipped,
-                      keep={a: usable_mask(p, full) for a, p in profiles.items()})
-
-
-def usable_mask(profiles: np.ndarray, full_scale: float) -> np.ndarray:
-    """Blocks of (3, N_BLOCKS, n_lines) colour profiles that can show stripes: not black,
-    saturated or flat in their mean over the colours (`usable.usable_blocks`)."""
-    from lishield_guard.detector.usable import usable_blocks
-
-    return usable_blocks(profiles.mean(axis=0), full_scale=full_scale)[0]
+    a = analysable(rgb, axes)
+    return axes_input(a["profiles"], full_scale=a["full_scale"], skipped=a["skipped"],
+                      keep=a["keep"])
