@@ -233,7 +233,10 @@ def main(argv: list[str] | None = None) -> int:
         zv = _val_logits(net, x, val)
         families = compare(x, y, w, val, zv, seed=a.train_seed)
         print(json.dumps(families), file=sys.stderr, flush=True)
-    card = {"training_commit": _commit(), "data_seed": a.seed, "train_seed": a.train_seed,
+    from training.data import MONO_PRESETS, RGB_PRESETS
+
+    card = {"training_commit": _commit(), "data_seed": a.seed,
+            "specs": list(MONO_PRESETS + RGB_PRESETS), "train_seed": a.train_seed,
             "n_examples": len(y), "n_val": int(val.sum()), "epochs": len(curves),
             "min_train_contrast": MIN_TRAIN_CONTRAST, "device": device,
             "generate_s": round(t_gen, 1), "fit_s": round(t_fit, 1), "jobs": a.jobs,

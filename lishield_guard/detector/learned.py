@@ -58,6 +58,14 @@ class DecisionModel:
         """Convolution kernel size in frequency bins."""
         return int(self.card["kernel"])
 
+    def knows(self, spec) -> bool:
+        """Whether the network was trained on captures of ``spec``: a preset named in the
+        card's ``specs``, with the preset's tones (a custom spec the network never saw is not
+        something its score can vouch for)."""
+        from lishield_guard.spec import PRESETS
+
+        return spec.name in self.card.get("specs", ()) and PRESETS.get(spec.name) == spec
+
 
 def _conv_same(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, dilation: int,
                kernel: int) -> np.ndarray:

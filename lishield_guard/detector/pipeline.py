@@ -169,10 +169,18 @@ def _detect_learned(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
-    if not specs:
-        why = "no policy configured: nothing to look for"
+    model = decision_model(det)
+    unknown = [s.name for _, s in specs if not model.knows(s)]
+    why = ("no policy configured: nothing to look for" if not specs else
+           f"the decision model was not trained on any configured spec ({', '.join(unknown)}; "
+           f"it knows {', '.join(model.card.get('specs', ())) or 'none'}): use profile "
+           f"cascade, or retrain (make train)" if len(unknown) == len(specs) else None)
+    if why is not None:  # the network cannot look for these barcodes: never "clean"
         return Verdict(False, None, 0, 1, evidence={"reason": why}, skipped=tuple(skipped),
                        timings_ms=timer.ms, profile="default", undetermined=why)
+    if unknown:
+        skipped.append(f"specs {', '.join(unknown)}: not in the decision model's training "
+                       f"(a clean verdict does not cover them; profile cascade does)")
     with timer("measure"):
         pixels = decoded.rgb() if decoded.is_color else decoded.luma
         rec = measure(pixels, det)

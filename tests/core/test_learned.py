@@ -195,3 +195,21 @@ def test_the_figure_of_a_learned_verdict_shows_what_decided(make_led_image, tmp_
     assert out.stat().st_size > 20_000
     assert figure_caption(v).startswith("Top: the network's logit for every window")
     assert "table2-rgb" in verdict_title(v)
+
+
+def test_specs_the_network_never_saw_are_never_reported_clean(make_led_image):
+    """A policy of a custom spec the network was not trained on: the default profile cannot
+    look for it, so the verdict is undetermined (never clean); beside a known spec, a clean
+    verdict says it does not cover the unknown one."""
+    from lishield_guard.spec import BarcodeSpec
+
+    custom = Policy(id="venue", description="custom", specs=(
+        BarcodeSpec.mono("venue", [500.0, 750.0, 1000.0]),))
+    img = make_led_image(None)
+    v = detect(img, _with_policies(custom))
+    assert v.status == "undetermined" and v.protected is None
+    assert "not trained on any configured spec" in v.undetermined
+    known = Policy(id="known", description="preset", specs=(PRESETS["table2-rgb"],))
+    v = detect(img, _with_policies(custom, known))
+    assert v.status == "clean"
+    assert any("not in the decision model's training" in s for s in v.skipped)
