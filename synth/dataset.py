@@ -581,6 +581,36 @@ def _make_light(p: dict):
     return SteadyLight()
 
 
+def _render_scene(p: dict, n_rows: int, n_cols: int) -> tuple[np.ndarray, dict]:
+    """Reflectance (n_rows, n_cols, 3) and description of the scene `sample_item` drew.
+
+    ``n_rows, n_cols`` may exceed the sensor (a video's panning camera crops a larger scene).
+    """
+    from synth.scene import load_scene, random_scene, texture_scene
+
+    scene_rng = np.random.default_rng(p["scene_seed"])
+    if p.get("scene_name"):
+        return load_scene(p["scene_name"], n_rows, n_cols), {"scene": p["scene_name"]}
+    if p.get("scene_photo"):
+        return _real_photo(p["scene_photo"], n_rows, n_cols, scene_rng)
+    if p["scene_kind"] == "texture":
+        kind = str(scene_rng.choice(("blinds", "bricks", "fabric")))
+        scene, sp = texture_scene(kind, n_rows, n_cols, rng=scene_rng)
+        return scene, {"scene": f"texture:{kind}", **sp}
+    return random_scene(n_rows, n_cols, rng=scene_rng)
+
+
+def _coverage(p: dict, n_rows: int, n_cols: int) -> np.ndarray | None:
+    """The LED's coverage map of shape (n_rows, n_cols) that `sample_item` drew, or None."""
+    from synth.light import coverage_map
+
+    cov = p["coverage"]
+    if cov["fraction"] >= 1.0:
+        return None
+    return coverage_map(n_rows, n_cols, fraction=cov["fraction"],
+                        centre_rc=tuple(cov["centre_rc"]), softness=cov["softness"])
+
+
 def render_item(p: dict) -> tuple[bytes, dict]:
     """Render the item described by `sample_item` parameters.
 
@@ -598,27 +628,10 @@ def render_item(p: dict) -> tuple[bytes, dict]:
         (stored pixels), ``exif_orientation`` and ``gain``.
     """
     from synth.camera import encode_jpeg, postprocess, simulate_frame
-    from synth.light import coverage_map
-    from synth.scene import load_scene, random_scene, texture_scene
 
     n_rows, n_cols = p["sensor_rows"], p["sensor_cols"]
-    scene_rng = np.random.default_rng(p["scene_seed"])
-    if p.get("scene_name"):
-        scene = load_scene(p["scene_name"], n_rows, n_cols)
-        scene_desc = {"scene": p["scene_name"]}
-    elif p.get("scene_photo"):
-        scene, scene_desc = _real_photo(p["scene_photo"], n_rows, n_cols, scene_rng)
-    elif p["scene_kind"] == "texture":
-        kind = str(scene_rng.choice(("blinds", "bricks", "fabric")))
-        scene, sp = texture_scene(kind, n_rows, n_cols, rng=scene_rng)
-        scene_desc = {"scene": f"texture:{kind}", **sp}
-    else:
-        scene, scene_desc = random_scene(n_rows, n_cols, rng=scene_rng)
-    cov = p["coverage"]
-    cmap = None
-    if cov["fraction"] < 1.0:
-        cmap = coverage_map(n_rows, n_cols, fraction=cov["fraction"],
-                            centre_rc=tuple(cov["centre_rc"]), softness=cov["softness"])
+    scene, scene_desc = _render_scene(p, n_rows, n_cols)
+    cmap = _coverage(p, n_rows, n_cols)
     camera = CameraModel(row_time_s=1.0 / p["row_rate_hz"], n_rows=n_rows,
                          exposure_s=p["exposure_s"])
     frame = simulate_frame(_make_light(p), scene, camera,
@@ -679,11 +692,33 @@ def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
     ConfigError
         Bad counts, mix, size or jobs.
     """
+    mix = resolve_mix(mix)
+    size_rc = parse_size(size) if isinstance(size, str) else (int(size[0]), int(size[1]))
+    labels = label_order(n_pos, n_neg, seed=seed, mix=mix, jobs=jobs)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = [(i, int(labels[i]), int(seed), mix, size_rc, str(out)) for i in range(len(labels))]
+    records = run_tasks(_work, tasks, jobs=jobs, progress=progress, unit="img")
+    return write_manifest(out, records)
+
+
+def resolve_mix(mix: Mix | str) -> Mix:
+    """A `Mix`, or the `MIXES` entry named ``mix``; ConfigError for an unknown name."""
     if isinstance(mix, str):
         if mix not in MIXES:
             raise ConfigError(f"unknown mix {mix!r}; known: {', '.join(MIXES)}")
-        mix = MIXES[mix]
-    size_rc = parse_size(size) if isinstance(size, str) else (int(size[0]), int(size[1]))
+        return MIXES[mix]
+    return mix
+
+
+def label_order(n_pos: int, n_neg: int, *, seed: int, mix: Mix, jobs: int = 1) -> np.ndarray:
+    """Labels (1/0) of a dataset's items in index order, shuffled by ``seed``; checks counts.
+
+    Raises
+    ------
+    ConfigError
+        Negative counts, no item, positives from a negatives-only mix, or jobs < 1.
+    """
     if n_pos < 0 or n_neg < 0 or n_pos + n_neg < 1:
         raise ConfigError(f"need n_pos, n_neg >= 0 and n_pos + n_neg >= 1, got n_pos={n_pos}, "
                           f"n_neg={n_neg}")
@@ -691,21 +726,28 @@ def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
         raise ConfigError(f"mix {mix.name!r} makes negatives only; got n_pos={n_pos} (use 0)")
     if jobs < 1:
         raise ConfigError(f"need jobs >= 1, got jobs={jobs!r}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    n = n_pos + n_neg
-    labels = np.zeros(n, dtype=int)
+    labels = np.zeros(n_pos + n_neg, dtype=int)
     labels[:n_pos] = 1
-    labels = np.random.default_rng(np.random.SeedSequence([int(seed), 2**31])).permutation(labels)
-    tasks = [(i, int(labels[i]), int(seed), mix, size_rc, str(out)) for i in range(n)]
+    return np.random.default_rng(np.random.SeedSequence([int(seed), 2**31])).permutation(labels)
+
+
+def run_tasks(work: Callable[[tuple], dict], tasks: list[tuple], *, jobs: int,
+              progress: bool | Callable, unit: str = "img", chunksize: int | None = None
+              ) -> list[dict]:
+    """``[work(t) for t in tasks]`` on ``jobs`` spawned processes (one thread each), in order.
+
+    ``work`` must be a module-level function (picklable); a tqdm bar on stderr shows progress.
+    ``chunksize`` (tasks sent to a worker at once) defaults to ``min(8, n / (4 * jobs))``.
+    """
     from tqdm import tqdm
 
-    bar = tqdm(total=n, desc="synth", unit="img", disable=not progress, file=None)
+    n = len(tasks)
+    bar = tqdm(total=n, desc="synth", unit=unit, disable=not progress, file=None)
     records: list[dict] = []
     try:
         if jobs == 1:
             for t in tasks:
-                records.append(_work(t))
+                records.append(work(t))
                 bar.update()
         else:
             import multiprocessing as mp
@@ -713,11 +755,17 @@ def write_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
             ctx = mp.get_context("spawn")
             with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
                                      initializer=one_thread_per_worker) as ex:
-                for rec in ex.map(_work, tasks, chunksize=max(1, min(8, n // (4 * jobs)))):
+                chunk = chunksize or max(1, min(8, n // (4 * jobs)))
+                for rec in ex.map(work, tasks, chunksize=chunk):
                     records.append(rec)
                     bar.update()
     finally:
         bar.close()
+    return records
+
+
+def write_manifest(out: Path, records: list[dict]) -> Path:
+    """Write ``out/manifest.jsonl`` (one sorted-key JSON object per record) atomically."""
     manifest = out / "manifest.jsonl"
     tmp = manifest.with_suffix(".jsonl.tmp")
     with open(tmp, "w", encoding="utf-8") as fh:

@@ -10,7 +10,7 @@ import typer
 from lishield_guard.commands import ExitCode
 from lishield_guard.errors import LishieldError
 
-__all__ = ["Phase", "Rotation", "Subsampling", "register"]
+__all__ = ["Codec", "Negative", "Phase", "Rotation", "Subsampling", "register"]
 
 ROTATIONS = (0, 90, 180, 270)
 
@@ -69,19 +69,31 @@ def dataset(
     sets: list[str] = typer.Option([], "--set", metavar="KEY=VALUE",
                                    help="Override a mix field, e.g. --set attack_prob=0.5 or "
                                         "--set jpeg_quality_range=80,95. Repeatable."),
-    size: str = typer.Option("1080p", "--size", help="1080p, 720p, 8mp, 12mp or WxH."),
+    size: str | None = typer.Option(None, "--size",
+                                    help="Photos: 1080p (default), 720p, 8mp, 12mp or WxH. "
+                                         "Videos: mixed (default: 540p/720p/1080p per clip), "
+                                         "360p, 540p, 720p, 1080p or WxH."),
+    videos: bool = typer.Option(False, "--videos",
+                                help="Write video clips (NNNNNN.mp4) instead of photos."),
+    video_mix: str = typer.Option("default", "--video-mix", metavar="VMIX",
+                                  help="With --videos: default (camera motion on half the "
+                                       "clips), static or motion (documented in "
+                                       "synth/video.py)."),
     jobs: int = typer.Option(1, "--jobs", "-j", help="Worker processes."),
     progress: bool = typer.Option(True, "--progress/--no-progress",
                                   help="Progress bar on stderr."),
 ) -> None:
-    """Write a labelled dataset: NNNNNN.jpg images plus manifest.jsonl (one line per image).
+    """Write a labelled dataset: NNNNNN.jpg images (or .mp4 clips) plus manifest.jsonl.
 
-    The output is byte-identical for a given seed, mix and size; the manifest records every
-    image's parameters (preset, exposure, ambient light, coverage, rotation, ...).
+    The output is byte-identical for a given seed, mix and size whatever --jobs; the
+    manifest records every item's parameters (preset, exposure, ambient light, coverage,
+    rotation, ...; for clips also fps, duration_s, n_frames, bitrate, codec, motion and the
+    per-frame exposure and LED contrast).
 
     Examples:
       lishield-guard synth dataset --out eval --n-pos 400 --n-neg 400 -j 2
       lishield-guard synth dataset --out neg --n-neg 100 --mix negatives-only
+      lishield-guard synth dataset --videos --out clips --n-pos 60 --n-neg 60 --seed 3401 -j 2
     """
     from synth.dataset import MIXES, parse_size, write_dataset
 
@@ -89,9 +101,16 @@ def dataset(
         if mix not in MIXES:
             raise _fail(f"unknown --mix {mix!r}; known: {', '.join(MIXES)}")
         m = MIXES[mix].with_overrides(_parse_sets(sets)) if sets else MIXES[mix]
-        size_rc = parse_size(size)
-        manifest = write_dataset(out, n_pos=n_pos, n_neg=n_neg, seed=seed, mix=m, size=size_rc,
-                                 jobs=jobs, progress=progress)
+        if videos:
+            from synth.video import write_video_dataset
+
+            manifest = write_video_dataset(out, n_pos=n_pos, n_neg=n_neg, seed=seed, mix=m,
+                                           size=size or "mixed", video_mix=video_mix,
+                                           jobs=jobs, progress=progress)
+        else:
+            manifest = write_dataset(out, n_pos=n_pos, n_neg=n_neg, seed=seed, mix=m,
+                                     size=parse_size(size or "1080p"), jobs=jobs,
+                                     progress=progress)
     except LishieldError as exc:
         raise _fail(str(exc)) from None
     except OSError as exc:
@@ -220,10 +239,94 @@ def capture(
                f"row_rate_hz={row_rate_hz:g} size={img.shape[1]}x{img.shape[0]}", err=True)
 
 
+class Codec(StrEnum):
+    """Video codecs (`synth.video.CODECS`)."""
+
+    h264 = "h264"
+    hevc = "hevc"
+    vp9 = "vp9"
+    vp8 = "vp8"
+
+
+class Negative(StrEnum):
+    """Look-alike lights and scenes for a clean clip."""
+
+    steady = "steady"
+    mains = "mains"
+    pwm = "pwm"
+    texture = "texture"
+
+
+def video(
+    out: Path = typer.Option(..., "--out", "-o", help="Output file (.mp4, or .webm for VP8/9)."),
+    preset: str | None = typer.Option(None, "--preset", metavar="PRESET",
+                                      help="Barcode preset (default: drawn from the mix)."),
+    f_b: float | None = typer.Option(None, "--f-b", help="Switching rate f_B in Hz."),
+    negative: Negative | None = typer.Option(None, "--negative",
+                                             help="A clean look-alike clip instead."),
+    fps: float | None = typer.Option(None, "--fps", help="Frame rate (default 24-60 drawn)."),
+    duration_s: float | None = typer.Option(None, "--duration", help="Seconds (default 2-10)."),
+    size: str = typer.Option("540p", "--size", help="360p, 540p, 720p, 1080p or WxH."),
+    ambient: float | None = typer.Option(None, "--ambient", help="Ambient / LED average, >= 0."),
+    coverage: float | None = typer.Option(None, "--coverage",
+                                          help="Lit fraction of the frame in (0, 1]."),
+    exposure_s: float | None = typer.Option(None, "--exposure-s",
+                                            help="Lock the exposure (s); default auto."),
+    motion: bool | None = typer.Option(None, "--motion/--no-motion",
+                                       help="Camera pan and shake (default: drawn, 50%)."),
+    codec: Codec = typer.Option(Codec.h264, "--codec", help="Video codec."),
+    bitrate: int | None = typer.Option(None, "--bitrate", help="Bit rate in bit/s."),
+    rotate: Rotation | None = typer.Option(None, "--rotate",
+                                           help="Clockwise display rotation, degrees."),
+    rotate_pixels: bool = typer.Option(False, "--rotate-pixels",
+                                       help="Bake --rotate into the pixels (default: a "
+                                            "display-matrix tag, as phones write)."),
+    scene: str | None = typer.Option(None, "--scene",
+                                     help="Image file, skimage:NAME, photos:DIR#I or "
+                                          "texture:KIND (default: drawn)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of every parameter not given."),
+) -> None:
+    """Render one synthetic clip: consecutive rolling-shutter frames, encoded (H.264 MP4).
+
+    The LED runs on between frames (frame k starts k/fps after frame 0), auto exposure
+    follows the scene, and the camera may pan and shake over a larger scene. Parameters not
+    given are drawn from the default mixes with --seed; the clip's full record is printed
+    as JSON on stdout.
+
+    Examples:
+      lishield-guard synth video -o clip.mp4 --preset table2-rgb --f-b 200 --duration 3
+      lishield-guard synth video -o blinds.mp4 --negative texture --scene texture:blinds --motion
+      lishield-guard synth video -o portrait.mp4 --rotate 90 --fps 30 --size 720p
+      lishield-guard synth video -o vp9.webm --codec vp9 --negative mains --bitrate 2000000
+    """
+    import json
+
+    from synth.video import clip_params, render_video_item
+
+    try:
+        p = clip_params(seed=seed, size=size, preset=preset, switching_hz=f_b,
+                        negative=None if negative is None else str(negative.value), fps=fps,
+                        duration_s=duration_s, ambient_ratio=ambient, coverage=coverage,
+                        exposure_s=exposure_s, motion=motion, codec=str(codec.value),
+                        bitrate=bitrate,
+                        rotation_deg=None if rotate is None else int(rotate.value),
+                        rotation_mode="bake" if rotate_pixels else "tag", scene=scene)
+        data, rec = render_video_item(p)
+    except LishieldError as exc:
+        raise _fail(str(exc)) from None
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(data)
+    except OSError as exc:
+        raise _fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
+    typer.echo(json.dumps({"file": str(out), **rec}, sort_keys=True))
+
+
 def register(app: typer.Typer) -> None:
-    """Add the ``synth`` command group (``capture``, ``dataset``) to the CLI."""
-    sub = typer.Typer(name="synth", help="Synthetic captures and labelled datasets.",
+    """Add the ``synth`` command group (``capture``, ``video``, ``dataset``) to the CLI."""
+    sub = typer.Typer(name="synth", help="Synthetic captures, clips and labelled datasets.",
                       no_args_is_help=True, add_completion=False)
     sub.command("capture")(capture)
+    sub.command("video")(video)
     sub.command("dataset")(dataset)
     app.add_typer(sub, name="synth")
