@@ -15,17 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
+from lishield_guard.batch import list_files, run_pool, worker_state
 from lishield_guard.config import AppConfig
 from lishield_guard.errors import LishieldError
 from lishield_guard.stats import pareto_front, percentile, rate_with_ci
 
 __all__ = [
     "FLOOR",
-    "IMAGE_SUFFIXES",
     "SETTINGS",
     "TARGETS",
     "BenchItem",
-    "Setting",
+    "BenchSetting",
+    "run",
     "clean_items",
     "evaluate_targets",
     "format_table",
@@ -63,11 +64,8 @@ TARGETS = {
     "d_peak_memory_max_x_rgb": 1.5,
 }
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".tif", ".tiff", ".bmp", ".heic", ".heif")
-
-
 @dataclass(frozen=True)
-class Setting:
+class BenchSetting:
     """One detector setting under test.
 
     Attributes
@@ -104,7 +102,7 @@ class BenchItem:
     kind: str = "?"
 
 
-def make_settings(names: Iterable[str], base: AppConfig) -> list[Setting]:
+def make_settings(names: Iterable[str], base: AppConfig) -> list[BenchSetting]:
     """Settings by name, each a copy of ``base`` with the `SETTINGS` changes applied.
 
     Raises
@@ -117,7 +115,7 @@ def make_settings(names: Iterable[str], base: AppConfig) -> list[Setting]:
         if name not in SETTINGS:
             raise ValueError(f"unknown setting {name!r}; known: {', '.join(SETTINGS)}")
         det = base.detector.with_values(SETTINGS[name])
-        out.append(Setting(name, dataclasses.replace(base, detector=det)))
+        out.append(BenchSetting(name, dataclasses.replace(base, detector=det)))
     return out
 
 
@@ -134,11 +132,10 @@ def synth_items(dataset: Path) -> list[BenchItem]:
 
 
 def clean_items(folder: Path) -> list[BenchItem]:
-    """Every image file under a folder of clean photos, all labelled 0, sorted by path."""
+    """Every image under a folder of clean photos (the types `scan` reads), all labelled 0,
+    sorted by path."""
     folder = Path(folder)
-    files = sorted(p for p in folder.rglob("*") if p.is_file()
-                   and p.suffix.lower() in IMAGE_SUFFIXES)
-    return [BenchItem(p, 0, f"clean:{folder.name}", "clean") for p in files]
+    return [BenchItem(p, 0, f"clean:{folder.name}", "clean") for p in list_files(folder)]
 
 
 def pillow_rgb_floor(path: Path) -> np.ndarray:
@@ -155,7 +152,7 @@ def _timed(fn: Callable[[], object]) -> tuple[float, object]:
     return time.perf_counter() - t0, out
 
 
-def _time_one(path: Path, settings: Sequence[Setting], *, repeat: int, offset: int
+def _time_one(path: Path, settings: Sequence[BenchSetting], *, repeat: int, offset: int
               ) -> tuple[list[float], dict[str, list[float]], dict[str, object]]:
     """Floor and every setting on one image, interleaved ``repeat`` times, order rotated.
 
@@ -168,7 +165,7 @@ def _time_one(path: Path, settings: Sequence[Setting], *, repeat: int, offset: i
     floor_s: list[float] = []
     times_s: dict[str, list[float]] = {s.name: [] for s in settings}
     verdicts: dict[str, object] = {}
-    jobs: list[Setting | None] = [None, *settings]
+    jobs: list[BenchSetting | None] = [None, *settings]
     for r in range(repeat):
         k = (offset + r) % len(jobs)
         for job in jobs[k:] + jobs[:k]:
@@ -187,7 +184,7 @@ def _time_one(path: Path, settings: Sequence[Setting], *, repeat: int, offset: i
     return floor_s, times_s, verdicts
 
 
-def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat: int = 1,
+def run_bench(items: Sequence[BenchItem], settings: Sequence[BenchSetting], *, repeat: int = 1,
               progress: Callable[[Iterable], Iterable] | None = None,
               time_budget_s: float | None = None, deadline_unix_s: float | None = None
               ) -> dict:
@@ -197,7 +194,7 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
     ----------
     items : sequence of BenchItem
         Images with labels.
-    settings : sequence of Setting
+    settings : sequence of BenchSetting
         Detector settings.
     repeat : int
         Interleaved repetitions per image (>= 1); the median per image is kept.
@@ -254,15 +251,15 @@ def run_bench(items: Sequence[BenchItem], settings: Sequence[Setting], *, repeat
             "n_skipped": len(items) - len(records)}
 
 
-def _bench_worker(items: list[BenchItem], names: list[str], config_path: str | None,
-                  repeat: int, deadline_unix_s: float | None) -> dict:
-    """Worker-process body of `run_bench_parallel`: settings rebuilt from names and a path."""
+def _bench_worker(chunk: list[BenchItem]) -> dict:
+    """Worker body of `run_bench_parallel`: settings rebuilt from names and a config path."""
     from lishield_guard.config import load_config
 
+    names, config_path, repeat, deadline_unix_s = worker_state()
     if deadline_unix_s is not None and time.time() > deadline_unix_s:
-        return {"records": [], "n_skipped": len(items)}
+        return {"records": [], "n_skipped": len(chunk)}
     settings = make_settings(names, load_config(config_path))
-    return run_bench(items, settings, repeat=repeat, deadline_unix_s=deadline_unix_s)
+    return run_bench(chunk, settings, repeat=repeat, deadline_unix_s=deadline_unix_s)
 
 
 def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
@@ -299,29 +296,77 @@ def run_bench_parallel(items: Sequence[BenchItem], names: Sequence[str], *,
     dict
         As `run_bench`, records in item order.
     """
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    from lishield_guard.threads import one_thread_per_worker
-
     cfg = None if config_path is None else str(config_path)
     chunks = [list(items[i:i + chunk]) for i in range(0, len(items), chunk)]
     deadline = None if time_budget_s is None else time.time() + time_budget_s
     records: list[dict] = []
-    with ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=mp.get_context("spawn"),
-                             initializer=one_thread_per_worker) as ex:
-        futs = []
-        for c in chunks:
-            futs.append(ex.submit(_bench_worker, c, list(names), cfg, repeat, deadline))
-        done = progress(futs) if progress else futs
-        for fut in done:
-            out = fut.result()
-            records += out["records"]
-            if deadline is not None and time.time() > deadline:
-                for f in futs:
-                    f.cancel()
+    results = run_pool(_bench_worker, chunks, jobs=max(1, jobs), ordered=True,
+                       state=(list(names), cfg, repeat, deadline), in_process=False,
+                       max_in_flight=len(chunks) or 1)
+    for _, out in (progress(results) if progress else results):
+        if isinstance(out, Exception):
+            raise out
+        records += out["records"]
     return {"records": records, "repeat": repeat, "settings": list(names),
             "n_skipped": len(items) - len(records)}
+
+
+def run(items: Sequence[BenchItem], settings: Sequence[BenchSetting], *,
+        config_path: Path | None = None, jobs: int = 1, repeat: int = 1,
+        time_budget_s: float | None = None, targets: dict[str, Path] | None = None,
+        target_repeat: int = 9, quick: bool = False,
+        progress: Callable[..., Iterable] | None = None,
+        on_note: Callable[[str], None] = print) -> dict:
+    """A whole benchmark: every setting on every item, then the speed and memory targets.
+
+    Parameters
+    ----------
+    items, settings, config_path, jobs, repeat, time_budget_s
+        As `run_bench` / `run_bench_parallel` (``jobs > 1`` runs the items in the pool).
+    targets : dict, optional
+        ``"12mp"`` and ``"1080p"`` target images (see ``lishield-guard bench``); None skips
+        the targets and the memory probe.
+    target_repeat : int
+        Paired runs per target image.
+    quick : bool
+        Time only the default setting on the targets, without warm-up.
+    progress : callable, optional
+        ``progress(iterable, desc)`` wraps what is iterated (e.g. a tqdm factory).
+    on_note : callable
+        Called with notes (a time budget reached).
+
+    Returns
+    -------
+    dict
+        The report `write_report` writes (without ``dataset``, ``clean`` and ``elapsed_s``).
+    """
+    names = [s.name for s in settings]
+    if jobs > 1:
+        run_ = run_bench_parallel(items, names, config_path=config_path, jobs=jobs,
+                                  repeat=repeat, time_budget_s=time_budget_s,
+                                  progress=progress and (lambda f: progress(f, "bench chunks")))
+    else:
+        run_ = run_bench(items, settings, repeat=repeat, progress=progress,
+                         time_budget_s=time_budget_s)
+    if run_["n_skipped"]:
+        on_note(f"time budget of {time_budget_s:g} s reached, "
+                f"{run_['n_skipped']} of {len(items)} images left out")
+    rows = summarize(run_)
+    measured: dict = {}
+    memory = None
+    if targets:
+        # --quick times only what the targets need (the default setting) on the big images
+        t_settings = [s for s in settings if s.name == "default" or not quick]
+        seq = list(targets.items())
+        for key, path in (progress(seq, "targets") if progress else seq):
+            measured[key] = time_target(path, t_settings, repeat=target_repeat,
+                                        warm_up=not quick)
+        mem_names = [n for n in names if n == "default" or not quick]
+        memory = measure_memory(targets["12mp"], mem_names, config_path=config_path, jobs=2)
+    return {"quick": quick, "repeat": repeat, "jobs": jobs, "n_skipped": run_["n_skipped"],
+            "settings": {s.name: SETTINGS[s.name] for s in settings},
+            "rows": rows, "targets_measured": measured, "memory": memory,
+            "targets": evaluate_targets(rows, measured, memory), "records": run_["records"]}
 
 
 def summarize(run: dict) -> list[dict]:
@@ -375,7 +420,7 @@ def summarize(run: dict) -> list[dict]:
     return rows
 
 
-def time_target(path: Path, settings: Sequence[Setting], *, repeat: int,
+def time_target(path: Path, settings: Sequence[BenchSetting], *, repeat: int,
                 warm_up: bool = True) -> dict:
     """Paired time ratios of every setting on one image (the speed targets' measurement).
 
@@ -383,7 +428,7 @@ def time_target(path: Path, settings: Sequence[Setting], *, repeat: int,
     ----------
     path : Path
         The image.
-    settings : sequence of Setting
+    settings : sequence of BenchSetting
         Detector settings.
     repeat : int
         Interleaved paired runs (>= 1).

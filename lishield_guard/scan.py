@@ -1,34 +1,56 @@
-"""Batch scan: enumerate files, folders, lists and archives; detect in parallel; build records."""
+"""Batch scan: detect on every input `lishield_guard.batch` lists, in parallel; build records.
+
+Inputs come from `lishield_guard.batch.listing` (re-exported here), workers from
+`lishield_guard.batch.pool`; this module turns verdicts into records and writes them.
+"""
 
 from __future__ import annotations
 
-import bz2
 import csv
-import fnmatch
-import gzip
 import io
 import json
-import lzma
 import os
-import re
 import stat
-import tarfile
 import threading
 import time
 import warnings
-import zipfile
-import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lishield_guard.batch.listing import (  # noqa: F401 - re-exported: the scan's inputs
+    ARCHIVE_SUFFIXES,
+    CODE_CORRUPT_MEMBER,
+    CODE_ENCRYPTED_MEMBER,
+    CODE_LINK_MEMBER,
+    CODE_NOT_FOUND,
+    CODE_PAYLOAD_TOO_LARGE,
+    CODE_READ_ERROR,
+    CODE_SPECIAL_MEMBER,
+    CODE_TRUNCATED_ARCHIVE,
+    CODE_UNREADABLE_ARCHIVE,
+    CODE_UNSAFE_NAME,
+    ScanItem,
+    _printable,
+    escape_name,
+    iter_items,
+    unsafe_member_reason,
+)
+from lishield_guard.batch.pool import WorkerCrashed, run_pool, worker_state
+from lishield_guard.batch.types import IMAGE_SUFFIXES, is_image_bytes  # noqa: F401
 from lishield_guard.config import AppConfig
 from lishield_guard.errors import LishieldError
 from lishield_guard.threads import one_thread_per_worker
 
 __all__ = [
+    "DaskUnreachable",
+    "ScanTally",
+    "dask_client",
+    "is_stream",
+    "scan_to_output",
     "ARCHIVE_SUFFIXES",
     "IMAGE_SUFFIXES",
     "RECORD_FIELDS",
@@ -49,13 +71,6 @@ __all__ = [
     "unsafe_member_reason",
 ]
 
-ARCHIVE_SUFFIXES = (".zip", ".tar", ".tar.gz", ".tgz", ".tar.bz2", ".tbz2", ".tar.xz", ".txz")
-#: Names found in folders and archives that are scanned without sniffing their bytes.
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".jpe", ".jfif", ".png", ".tif", ".tiff", ".webp", ".bmp",
-                  ".gif", ".heic", ".heif")
-SNIFF_BYTES = 32  # leading bytes read to recognise an image whose name does not say so
-TAR_TAIL_MAX_BYTES = 64 * 1024 * 1024  # decompressed bytes after a tar's end read to reach
-#                                        the compressed stream's own end and checksum
 
 #: Record fields in output order (the DESIGN.md scan contract plus the resume key).
 #: ``status`` is "protected", "clean", "undetermined" (the detector could not look; reason in
@@ -70,504 +85,8 @@ RECORD_FIELDS = ("path", "status", "protected", "policy", "matches", "required",
                  "path_escaped", "reason", "skipped")
 STATUSES = ("protected", "clean", "undetermined", "error")
 
-# Stable codes of the scanner's own skip reasons (detector errors keep their LishieldError.code).
-CODE_UNSAFE_NAME = "unsafe_member_name"
-CODE_LINK_MEMBER = "link_member"
-CODE_SPECIAL_MEMBER = "special_member"
-CODE_ENCRYPTED_MEMBER = "encrypted_member"
-CODE_CORRUPT_MEMBER = "corrupt_member"
-CODE_UNREADABLE_ARCHIVE = "unreadable_archive"
-CODE_TRUNCATED_ARCHIVE = "truncated_archive"
-CODE_NOT_FOUND = "not_found"
-CODE_READ_ERROR = "read_error"
-CODE_PAYLOAD_TOO_LARGE = "payload_too_large"
 CODE_INTERNAL = "internal_error"
 CODE_WORKER_CRASHED = "worker_crashed"
-
-_NEEDS_ESCAPE = re.compile(r"[\x00-\x1f\x7f\ud800-\udfff]")
-_ESCAPED = re.compile(r"[\\\x00-\x1f\x7f\ud800-\udfff]")
-
-
-def _escape_char(m: re.Match) -> str:
-    c = m.group()
-    if c == "\\":
-        return "\\\\"
-    code = ord(c)
-    if 0xDC80 <= code <= 0xDCFF:  # a byte that was not UTF-8 (os.fsdecode's surrogateescape)
-        return f"\\x{code - 0xDC00:02x}"
-    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}"
-
-
-def escape_name(name: str) -> tuple[str, bool]:
-    """A file or member name as one line of valid UTF-8, and whether it had to be escaped.
-
-    Names that are printable UTF-8 are returned as they are. Otherwise every backslash is
-    doubled, control characters become ``\\xNN`` and bytes that are not UTF-8 (held as
-    surrogate escapes by ``os.fsdecode``, ``os.scandir`` and ``tarfile``) become ``\\xNN`` of
-    the original byte, so the name can be recovered exactly.
-
-    Examples
-    --------
-    >>> escape_name("a.jpg")
-    ('a.jpg', False)
-    >>> escape_name(b"b\\xff\\n.jpg".decode("utf-8", "surrogateescape"))
-    ('b\\\\xff\\\\x0a.jpg', True)
-    """
-    if not _NEEDS_ESCAPE.search(name):
-        return name, False
-    return _ESCAPED.sub(_escape_char, name), True
-
-
-def _printable(text: str) -> str:
-    """`escape_name` without the flag (resume keys)."""
-    return escape_name(text)[0]
-
-
-def is_image_bytes(head: bytes) -> bool:
-    """True when leading bytes carry the signature of an image format the decoder reads.
-
-    Examples
-    --------
-    >>> is_image_bytes(b"\\xff\\xd8\\xff\\xe0"), is_image_bytes(b"# notes")
-    (True, False)
-    """
-    return (head.startswith((b"\xff\xd8\xff", b"\x89PNG\r\n\x1a\n", b"GIF87a", b"GIF89a",
-                             b"II*\x00", b"MM\x00*", b"BM"))
-            or (head[:4] == b"RIFF" and head[8:12] == b"WEBP")
-            or (head[4:8] == b"ftyp" and head[8:12] in (b"heic", b"heix", b"heim", b"heis",
-                                                         b"hevc", b"hevx", b"mif1", b"msf1",
-                                                         b"avif")))
-
-
-def _has_image_name(name: str) -> bool:
-    return name.lower().endswith(IMAGE_SUFFIXES)
-
-
-def _is_hidden(label: str) -> bool:
-    return any(part.startswith(".") and part not in (".", "..")
-               for part in re.split(r"[/!\\]", label))
-
-
-@dataclass(frozen=True)
-class ScanItem:
-    """One input of a scan: a file, an archive member, or something recorded as skipped.
-
-    Attributes
-    ----------
-    label : str
-        Output ``path``: the file path as found, or ``"archive.zip!dir/a.jpg"`` for a member.
-    key : str
-        Resume key: ``abspath|size|mtime_ns`` for files, ``abspath!member|crc32`` for members.
-    size_bytes : int or None
-        Encoded size in bytes (None when unknown).
-    source : str, bytes or None
-        What the worker decodes: a path for files, the bytes of an archive member, or None
-        when the item is recorded without detection (see ``error``).
-    error, code : str or None
-        Skip reason and its stable code when ``source`` is None.
-    escaped : bool
-        True when ``label`` had to be escaped (see `escape_name`).
-    """
-
-    label: str
-    key: str
-    size_bytes: int | None
-    source: str | bytes | None
-    error: str | None = None
-    code: str | None = None
-    escaped: bool = False
-
-
-def is_archive(name: str) -> bool:
-    """True when a file name ends with one of `ARCHIVE_SUFFIXES` (case-insensitive)."""
-    low = name.lower()
-    return any(low.endswith(s) for s in ARCHIVE_SUFFIXES)
-
-
-def unsafe_member_reason(name: str) -> str | None:
-    """Why an archive member name is hostile, or None when it is a plain relative name.
-
-    Examples
-    --------
-    >>> unsafe_member_reason("../x.jpg")
-    'parent-directory component in member name'
-    >>> unsafe_member_reason("dir/a.jpg") is None
-    True
-    """
-    if not name:
-        return "empty member name"
-    if "\x00" in name:
-        return "NUL character in member name"
-    norm = name.replace("\\", "/")
-    if norm.startswith("/") or re.match(r"^[A-Za-z]:", norm):
-        return "absolute member name"
-    if ".." in norm.split("/"):
-        return "parent-directory component in member name"
-    return None
-
-
-def _selected(label: str, include: tuple[str, ...], exclude: tuple[str, ...], *,
-              leaf: bool = True) -> bool:
-    low = label.lower()
-    name = re.split(r"[/!\\]", low)[-1]
-
-    def hit(pats: tuple[str, ...]) -> bool:  # case-insensitive: *.jpg matches X.JPG
-        return any(fnmatch.fnmatchcase(low, p.lower()) or fnmatch.fnmatchcase(name, p.lower())
-                   for p in pats)
-
-    if exclude and hit(exclude):
-        return False
-    return not (leaf and include and not hit(include))
-
-
-def _file_key(path: str, st: os.stat_result) -> str:
-    return f"{_printable(os.path.abspath(path))}|{st.st_size}|{st.st_mtime_ns}"
-
-
-def _file_item(path: str) -> ScanItem:
-    label, esc = escape_name(path)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        return ScanItem(label, f"{_printable(os.path.abspath(path))}|missing", None, None,
-                        "no such file", CODE_NOT_FOUND, esc)
-    except OSError as exc:
-        return ScanItem(label, f"{_printable(os.path.abspath(path))}|unreadable", None, None,
-                        f"cannot stat: {exc.strerror}", CODE_READ_ERROR, esc)
-    if not stat.S_ISREG(st.st_mode):
-        return ScanItem(label, _file_key(path, st), None, None,
-                        f"skipped: not a regular file ({_kind(st.st_mode)}; never read)",
-                        CODE_SPECIAL_MEMBER, esc)
-    return ScanItem(label, _file_key(path, st), st.st_size, path, escaped=esc)
-
-
-def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISDIR, "folder"), (stat.S_ISFIFO, "FIFO"),
-                       (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
-                       (stat.S_ISSOCK, "socket")):
-        if test(mode):
-            return name
-    return "special file"
-
-
-def _sniff_file(path: str) -> bool:
-    """Whether a regular file's first bytes are an image signature (non-blocking open)."""
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError:
-        return True  # let the scan record why it cannot be read
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return True  # recorded as special
-        return is_image_bytes(os.read(fd, SNIFF_BYTES))
-    except OSError:
-        return True
-    finally:
-        os.close(fd)
-
-
-def _member_label(base: str, base_esc: bool, name: str) -> tuple[str, bool]:
-    esc_name, esc = escape_name(name)
-    return f"{base}!{esc_name}", base_esc or esc
-
-
-class _Selector:
-    """Which names found in folders and archives are scanned.
-
-    ``exclude`` drops; ``include`` (when given) alone decides; otherwise a name with an image
-    suffix that is not hidden is scanned, and any other regular file or member only when its
-    first bytes are an image signature (sidecars, ``.DS_Store``, AppleDouble ``._x.jpg`` and
-    ``manifest.jsonl`` are ignored, an image without a suffix is not). Matching is
-    case-insensitive.
-    """
-
-    def __init__(self, include: tuple[str, ...], exclude: tuple[str, ...],
-                 on_ignored: Callable[[str], None] | None) -> None:
-        self.include, self.exclude, self.on_ignored = include, exclude, on_ignored
-
-    def excluded(self, label: str) -> bool:
-        return bool(self.exclude) and not _selected(label, (), self.exclude, leaf=False)
-
-    def by_name(self, label: str) -> bool | None:
-        """True: scan; False: drop; None: decided by the bytes."""
-        if not _selected(label, (), self.exclude, leaf=False):
-            return False
-        if self.include:
-            return _selected(label, self.include, (), leaf=True)
-        if _has_image_name(label) and not _is_hidden(label):
-            return True
-        return None
-
-    def ignore(self, label: str) -> None:
-        if self.on_ignored is not None:
-            self.on_ignored(label)
-
-
-def _iter_zip(path: str, *, max_bytes: int, sel: _Selector,
-              read_data: bool) -> Iterator[ScanItem]:
-    base, base_esc = escape_name(path)
-    abs_base = _printable(os.path.abspath(path))
-    with zipfile.ZipFile(path) as zf:
-        for info in zf.infolist():
-            name = info.filename
-            if info.is_dir():
-                continue
-            label, esc = _member_label(base, base_esc, name)
-            wanted = sel.by_name(label)
-            if wanted is False:
-                continue
-            key = f"{abs_base}!{_printable(name)}|{info.CRC:08x}"
-            mode = info.external_attr >> 16
-            reason = unsafe_member_reason(name)
-            regular = not (stat.S_ISLNK(mode) or (mode and stat.S_IFMT(mode)
-                                                  and not stat.S_ISREG(mode)))
-            if wanted is None and (reason or not regular or info.flag_bits & 0x1
-                                   or info.file_size > max_bytes or not read_data):
-                sel.ignore(label)  # not an image by name, and not read to tell: ignored
-                continue
-            if reason:
-                yield ScanItem(label, key, info.file_size, None, f"skipped: {reason}",
-                               CODE_UNSAFE_NAME, esc)
-            elif stat.S_ISLNK(mode):
-                yield ScanItem(label, key, info.file_size, None,
-                               "skipped: symbolic link member (never followed)",
-                               CODE_LINK_MEMBER, esc)
-            elif not regular:
-                yield ScanItem(label, key, info.file_size, None,
-                               "skipped: not a regular file member", CODE_SPECIAL_MEMBER, esc)
-            elif info.flag_bits & 0x1:
-                yield ScanItem(label, key, info.file_size, None, "skipped: encrypted member",
-                               CODE_ENCRYPTED_MEMBER, esc)
-            elif info.file_size > max_bytes:
-                yield ScanItem(label, key, info.file_size, None,
-                               f"member has {info.file_size} bytes > max_bytes={max_bytes}",
-                               CODE_PAYLOAD_TOO_LARGE, esc)
-            elif not read_data:
-                yield ScanItem(label, key, info.file_size, None, escaped=esc)
-            else:
-                try:
-                    with zf.open(info) as fh:
-                        data = fh.read(max_bytes + 1)
-                except (zipfile.BadZipFile, zlib.error, OSError, EOFError,
-                        NotImplementedError, RuntimeError) as exc:
-                    yield ScanItem(label, key, info.file_size, None,
-                                   f"cannot read member: {exc}", CODE_CORRUPT_MEMBER, esc)
-                    continue
-                if wanted is None and not is_image_bytes(data[:SNIFF_BYTES]):
-                    sel.ignore(label)
-                    continue
-                if len(data) > max_bytes:
-                    yield ScanItem(label, key, len(data), None,
-                                   f"member has > max_bytes={max_bytes} bytes",
-                                   CODE_PAYLOAD_TOO_LARGE, esc)
-                    continue
-                yield ScanItem(label, key, len(data), data, escaped=esc)
-
-
-class _TruncatedArchiveError(Exception):
-    """A tar stream ended without its end-of-archive blocks, or a compressed stream early."""
-
-
-def _tar_info_class():
-    """A TarInfo subclass that notes whether the all-zero end-of-archive block was read."""
-
-    class _EndAware(tarfile.TarInfo):
-        end_seen = False
-
-        @classmethod
-        def frombuf(cls, buf, encoding, errors):
-            if len(buf) == tarfile.BLOCKSIZE and buf.count(tarfile.NUL) == tarfile.BLOCKSIZE:
-                cls.end_seen = True
-            return super().frombuf(buf, encoding, errors)
-
-    return _EndAware
-
-
-def _open_decompressed(raw):
-    """The decompressed stream of a tar file: gzip, bzip2 and xz readers verify their own end
-    and checksum (EOFError on a cut file); plain tars are read as they are."""
-    head = raw.read(6)
-    raw.seek(0)
-    if head.startswith(b"\x1f\x8b"):
-        return gzip.GzipFile(fileobj=raw, mode="rb")
-    if head.startswith(b"BZh"):
-        return bz2.BZ2File(raw, mode="rb")
-    if head.startswith(b"\xfd7zXZ\x00"):
-        return lzma.LZMAFile(raw, mode="rb")
-    return raw
-
-
-def _iter_tar(path: str, *, max_bytes: int, sel: _Selector,
-              read_data: bool) -> Iterator[ScanItem]:
-    base, base_esc = escape_name(path)
-    abs_base = _printable(os.path.abspath(path))
-    info_cls = _tar_info_class()
-    # Stream mode: headers and data are read once, in order; nothing is ever extracted.
-    with open(path, "rb") as raw, _open_decompressed(raw) as stream, \
-            tarfile.open(fileobj=stream, mode="r|", tarinfo=info_cls) as tf:
-        for m in tf:
-            if m.isdir():
-                continue
-            label, esc = _member_label(base, base_esc, m.name)
-            wanted = sel.by_name(label)
-            if wanted is False:
-                continue
-            key_stem = f"{abs_base}!{_printable(m.name)}"
-            reason = unsafe_member_reason(m.name)
-            if wanted is None and (reason or not m.isfile() or m.size > max_bytes
-                                   or not read_data):
-                sel.ignore(label)
-                continue
-            if reason:
-                yield ScanItem(label, f"{key_stem}|{m.size}", m.size, None,
-                               f"skipped: {reason}", CODE_UNSAFE_NAME, esc)
-            elif m.issym() or m.islnk():
-                kind = "symbolic" if m.issym() else "hard"
-                yield ScanItem(label, f"{key_stem}|{m.size}", m.size, None,
-                               f"skipped: {kind} link member (never followed)",
-                               CODE_LINK_MEMBER, esc)
-            elif not m.isfile():
-                yield ScanItem(label, f"{key_stem}|{m.size}", m.size, None,
-                               "skipped: not a regular file member", CODE_SPECIAL_MEMBER, esc)
-            elif m.size > max_bytes:
-                yield ScanItem(label, f"{key_stem}|{m.size}", m.size, None,
-                               f"member has {m.size} bytes > max_bytes={max_bytes}",
-                               CODE_PAYLOAD_TOO_LARGE, esc)
-            elif not read_data:
-                yield ScanItem(label, f"{key_stem}|{m.size}", m.size, None, escaped=esc)
-            else:
-                fh = tf.extractfile(m)
-                data = fh.read() if fh is not None else b""
-                if len(data) != m.size:
-                    raise _TruncatedArchiveError(f"member {label!r} is cut after {len(data)} "
-                                                 f"of {m.size} bytes")
-                if wanted is None and not is_image_bytes(data[:SNIFF_BYTES]):
-                    sel.ignore(label)
-                    continue
-                yield ScanItem(label, f"{key_stem}|{zlib.crc32(data):08x}", len(data), data,
-                               escaped=esc)
-        if not info_cls.end_seen:
-            raise _TruncatedArchiveError("the archive ends without its end-of-archive blocks")
-        if stream is raw and os.fstat(raw.fileno()).st_size % tarfile.BLOCKSIZE:
-            raise _TruncatedArchiveError(f"the file is not a whole number of "
-                                         f"{tarfile.BLOCKSIZE}-byte tar blocks")
-        if stream is not raw:  # reach the compressed stream's end: its checksum is verified
-            left = TAR_TAIL_MAX_BYTES
-            while left > 0 and (chunk := stream.read(min(left, 1 << 20))):
-                left -= len(chunk)
-
-
-def _iter_archive(path: str, **kw) -> Iterator[ScanItem]:
-    label, esc = escape_name(path)
-    try:
-        st = os.stat(path)
-        key = _file_key(path, st) + "!<archive>"
-    except OSError as exc:
-        yield ScanItem(label, f"{_printable(os.path.abspath(path))}|missing!<archive>", None,
-                       None, f"cannot open archive: {exc.strerror}", CODE_NOT_FOUND, esc)
-        return
-    if not stat.S_ISREG(st.st_mode):  # a FIFO would block, a device would never end
-        yield ScanItem(label, key, None, None,
-                       f"skipped: not a regular file ({_kind(st.st_mode)}; never read)",
-                       CODE_SPECIAL_MEMBER, esc)
-        return
-    opener = _iter_zip if path.lower().endswith(".zip") else _iter_tar
-    try:
-        yield from opener(path, **kw)
-    except _TruncatedArchiveError as exc:
-        yield ScanItem(label, key, st.st_size, None, f"truncated archive: {exc}",
-                       CODE_TRUNCATED_ARCHIVE, esc)
-    except EOFError as exc:
-        yield ScanItem(label, key, st.st_size, None, f"truncated archive: {exc}",
-                       CODE_TRUNCATED_ARCHIVE, esc)
-    except tarfile.ReadError as exc:
-        cut = "unexpected end of data" in str(exc) or "truncated" in str(exc)
-        yield ScanItem(label, key, st.st_size, None,
-                       f"{'truncated' if cut else 'cannot read'} archive: {exc}",
-                       CODE_TRUNCATED_ARCHIVE if cut else CODE_UNREADABLE_ARCHIVE, esc)
-    except (zipfile.BadZipFile, tarfile.TarError, zlib.error, OSError, ValueError,
-            lzma.LZMAError) as exc:
-        yield ScanItem(label, key, st.st_size, None, f"cannot read archive: {exc}",
-                       CODE_UNREADABLE_ARCHIVE, esc)
-
-
-def _walk(folder: str, sel: _Selector) -> Iterator[str]:
-    """Files under folder, depth first, entries sorted by name; symlinked folders not entered.
-
-    Yields archives, images (by name or by signature) and non-regular entries (recorded as
-    special); other files are passed to ``sel.ignore``.
-    """
-    try:
-        with os.scandir(folder) as it:
-            entries = sorted(it, key=lambda e: e.name)
-    except OSError:
-        return
-    for e in entries:
-        if e.is_dir(follow_symlinks=False):
-            if not sel.excluded(e.path):
-                yield from _walk(e.path, sel)
-        elif is_archive(e.name):
-            if not sel.excluded(e.path):
-                yield e.path
-        else:
-            wanted = sel.by_name(e.path)
-            if wanted is None:
-                try:
-                    regular = e.is_file(follow_symlinks=True)
-                except OSError:
-                    regular = False
-                wanted = not regular or _sniff_file(e.path)
-                if not wanted:
-                    sel.ignore(escape_name(e.path)[0])
-            if wanted:
-                yield e.path
-
-
-def iter_items(paths: Iterable[str | Path], *, include: Iterable[str] = (),
-               exclude: Iterable[str] = (), max_bytes: int = 64 * 1024 * 1024,
-               read_data: bool = True,
-               on_ignored: Callable[[str], None] | None = None) -> Iterator[ScanItem]:
-    """Every scan input under ``paths``, lazily, in a deterministic order.
-
-    Parameters
-    ----------
-    paths : iterable of str or Path
-        Files, folders (walked recursively, sorted; symlinked folders not followed) and
-        archives (``.zip``, ``.tar``, ``.tar.gz``/``.tgz``, ``.tar.bz2``, ``.tar.xz``).
-        Only regular files (or links to them) are ever read: FIFOs, devices and sockets are
-        recorded as ``special_member`` without being opened.
-    include, exclude : iterable of str
-        Shell globs, case-insensitive, matched against the whole label and against its last
-        name. ``include`` keeps only matching names found in folders and archives (without
-        it: images by suffix or by signature, see `_Selector`); ``exclude`` drops files,
-        folders and archives. Paths named explicitly are never dropped by ``include``.
-    max_bytes : int
-        Archive members larger than this are recorded as too large without being read, in bytes.
-    read_data : bool
-        Read archive members (False counts inputs cheaply; ``source`` is then None).
-    on_ignored : callable, optional
-        Called with the label of every file or member passed over as not an image.
-
-    Yields
-    ------
-    ScanItem
-        Archive members carry their bytes (read one at a time, in memory, never extracted);
-        hostile names, links, special members and truncated archives are yielded with
-        ``source=None`` and a reason.
-    """
-    sel = _Selector(tuple(include), tuple(exclude), on_ignored)
-    kw = {"max_bytes": max_bytes, "sel": sel, "read_data": read_data}
-    for raw in paths:
-        p = os.fsdecode(raw) if isinstance(raw, bytes) else str(raw)
-        if os.path.isdir(p):
-            for f in _walk(p, sel):
-                yield from (_iter_archive(f, **kw) if is_archive(f) else (_file_item(f),))
-        elif is_archive(p) and os.path.exists(p):
-            yield from _iter_archive(p, **kw)
-        else:
-            yield _file_item(p)
-
 
 # --------------------------------------------------------------------------- detection
 
@@ -673,47 +192,8 @@ def tally_file(path: str | Path, fmt: str) -> Counter:
     return counts
 
 
-_WORKER_CONFIG: AppConfig | None = None
-
-
-def _watch_parent(pid: int, interval_s: float = 0.5) -> None:
-    """Exit this worker as soon as process ``pid`` (the scan) is gone, even after SIGKILL.
-
-    Pool workers are children of the forkserver, not of the scan, so they would outlive a
-    killed scan; a daemon thread waits on a pidfd of the scan (or polls it) and exits.
-    """
-    def watch() -> None:
-        try:
-            import select
-
-            fd = os.pidfd_open(pid)
-            select.select([fd], [], [])
-        except (AttributeError, OSError):
-            while True:
-                try:
-                    os.kill(pid, 0)
-                except ProcessLookupError:
-                    break
-                except PermissionError:
-                    pass
-                time.sleep(interval_s)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="lishield-parent-watch", daemon=True).start()
-
-
-def _init_worker(config: AppConfig, parent_pid: int | None = None) -> None:
-    global _WORKER_CONFIG
-    _WORKER_CONFIG = config
-    if parent_pid is not None:
-        _watch_parent(parent_pid)
-    one_thread_per_worker()
-    import lishield_guard.detector  # noqa: F401 - warm the imports once per worker
-
-
 def _scan_in_worker(source: str | bytes) -> dict[str, Any]:
-    assert _WORKER_CONFIG is not None, "worker not initialised"
-    return scan_source(source, _WORKER_CONFIG)
+    return scan_source(source, worker_state())
 
 
 def run_scan(items: Iterable[ScanItem], *, config: AppConfig, jobs: int = 1,
@@ -742,68 +222,13 @@ def run_scan(items: Iterable[ScanItem], *, config: AppConfig, jobs: int = 1,
     if client is not None:
         yield from _run_dask(items, config=config, client=client, max_in_flight=max_in_flight)
         return
-    jobs = max(1, int(jobs))
-    limit = max_in_flight or 4 * jobs
-    if jobs == 1 and max_in_flight is None:
-        for item in items:
-            yield build_record(item, None if item.source is None
-                               else scan_source(item.source, config))
-        return
-    yield from _run_pool(items, config=config, jobs=jobs, limit=limit)
-
-
-def _new_pool(config: AppConfig, jobs: int):
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["lishield_guard.scan", "lishield_guard.detector"])
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker,
-                               initargs=(config, os.getpid()))
-
-
-def _run_pool(items: Iterable[ScanItem], *, config: AppConfig, jobs: int,
-              limit: int) -> Iterator[dict[str, Any]]:
-    from concurrent.futures import FIRST_COMPLETED, wait
-    from concurrent.futures.process import BrokenProcessPool
-
-    pool = _new_pool(config, jobs)
-    pending: dict[Any, ScanItem] = {}
-
-    def drain(block_until: int) -> Iterator[dict[str, Any]]:
-        nonlocal pool
-        while len(pending) > block_until:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            broken = False
-            for fut in done:
-                item = pending.pop(fut)
-                try:
-                    fields = fut.result()
-                except BrokenProcessPool:
-                    broken = True
-                    fields = {**_error_fields("worker process died while decoding this input "
-                                              "(or another in flight)", CODE_WORKER_CRASHED),
-                              "elapsed_ms": 0.0}
-                yield build_record(item, fields)
-            if broken:  # every other in-flight future fails too; then start a fresh pool
-                pool.shutdown(wait=False, cancel_futures=True)
-                pool = _new_pool(config, jobs)
-
-    try:
-        for item in items:
-            if item.source is None:
-                yield build_record(item)
-                continue
-            yield from drain(limit - 1)
-            try:
-                fut = pool.submit(_scan_in_worker, item.source)
-            except BrokenProcessPool:
-                pool = _new_pool(config, jobs)
-                fut = pool.submit(_scan_in_worker, item.source)
-            pending[fut] = item
-        yield from drain(0)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    results = run_pool(_scan_in_worker, items, jobs=jobs, state=config,
+                       work=lambda item: item.source, max_in_flight=max_in_flight,
+                       preload=("lishield_guard.scan", "lishield_guard.detector"))
+    for item, fields in results:
+        if isinstance(fields, WorkerCrashed):
+            fields = {**_error_fields(str(fields), CODE_WORKER_CRASHED), "elapsed_ms": 0.0}
+        yield build_record(item, fields)
 
 
 def _scan_on_dask(source: str | bytes, config: AppConfig) -> dict[str, Any]:
@@ -974,3 +399,174 @@ def filter_new(items: Iterable[ScanItem], done: set[str],
             continue
         done.add(item.key)
         yield item
+
+
+# --------------------------------------------------------------------------- one scan, end to end
+
+def is_stream(path: str) -> bool:
+    """True for outputs that are written as they are, never checked, resumed or re-read:
+    ``-``, ``/dev/stdout`` and other device paths, pipes and terminals."""
+    if path == "-" or path.startswith(("/dev/", "/proc/")):
+        return True
+    try:
+        return not stat.S_ISREG(os.stat(path).st_mode)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+
+
+class DaskUnreachable(Exception):  # noqa: N818 - a state of the cluster, not a bug
+    """The Dask scheduler could not be reached (or the local cluster not started)."""
+
+
+@contextmanager
+def dask_client(*, local: bool, scheduler: str | None, jobs: int) -> Iterator[Any]:
+    """A Dask client (a LocalCluster of ``jobs`` workers, or one on ``scheduler``), closed
+    on exit; None when neither is asked for.
+
+    Raises
+    ------
+    DaskUnreachable
+        When the scheduler cannot be reached.
+    """
+    if not (local or scheduler):
+        yield None
+        return
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    try:
+        if local:
+            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close()
+        raise DaskUnreachable(str(exc)) from None
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+@dataclass(frozen=True)
+class ScanTally:
+    """What one `scan_to_output` did.
+
+    Attributes
+    ----------
+    counts, codes : Counter
+        Records written by status (`STATUSES`), and error records by code.
+    n_resumed, n_ignored : int
+        Inputs already recorded (``resume``), and non-image files passed over.
+    elapsed_s : float
+        Wall time, in seconds.
+    whole : Counter or None
+        Records of the whole output file by status (earlier runs' too); None for a stream.
+    """
+
+    counts: Counter
+    codes: Counter
+    n_resumed: int
+    n_ignored: int
+    elapsed_s: float
+    whole: Counter | None
+
+
+def scan_to_output(inputs: list[str], *, output: str, fmt: str, config: AppConfig, jobs: int,
+                   resume: bool = False, include: Iterable[str] = (),
+                   exclude: Iterable[str] = (), client: Any = None,
+                   progress: bool = False) -> ScanTally:
+    """Scan ``inputs`` and write one record per input to ``output`` as results arrive.
+
+    Parameters
+    ----------
+    inputs : list of str
+        Files, folders and archives (`iter_items`).
+    output : str
+        Output file, or ``"-"`` for stdout.
+    fmt : {"jsonl", "csv"}
+        Output format.
+    config : AppConfig
+        Detector settings.
+    jobs : int
+        Worker processes (ignored with ``client``).
+    resume : bool
+        Append to ``output``, skipping inputs already recorded there.
+    include, exclude : iterable of str
+        Globs (`iter_items`).
+    client : distributed.Client, optional
+        Run on a Dask cluster.
+    progress : bool
+        A progress bar on stderr (its total counted while the scan runs).
+
+    Returns
+    -------
+    ScanTally
+
+    Raises
+    ------
+    OSError
+        When the output cannot be written (records written so far stay whole lines).
+    """
+    done: set[str] = read_done_keys(output, fmt) if resume else set()
+    n_resumed = n_ignored = 0
+    bar = None
+
+    def on_skip(_item) -> None:
+        nonlocal n_resumed
+        n_resumed += 1
+        if bar is not None:  # counted in the total, so the bar still reaches 100 %
+            bar.update(1)
+
+    def on_ignored(_label: str) -> None:
+        nonlocal n_ignored
+        n_ignored += 1
+
+    kw = {"include": include, "exclude": exclude, "max_bytes": config.limits.max_bytes}
+    items = filter_new(iter_items(inputs, **kw, on_ignored=on_ignored), done, on_skip)
+    if progress:
+        bar = _counted_bar(inputs, kw)
+    counts: Counter = Counter()
+    codes: Counter = Counter()
+    t0 = time.perf_counter()
+    try:
+        with RecordWriter(None if output == "-" else output, fmt) as writer:
+            for rec in run_scan(items, config=config, jobs=jobs, client=client):
+                writer.write(rec)
+                status = record_status(rec)
+                counts[status] += 1
+                if status == "error":
+                    codes[rec["code"]] += 1
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    elapsed_s = time.perf_counter() - t0
+    whole = None
+    if not is_stream(output) and os.path.isfile(output):  # earlier runs' records too
+        whole = tally_file(output, fmt)
+    return ScanTally(counts, codes, n_resumed, n_ignored, elapsed_s, whole)
+
+
+def _counted_bar(inputs: list[str], kw: dict):
+    """A progress bar whose total is counted in a thread while the scan already runs."""
+    from lishield_guard.batch.pool import progress_bar
+
+    bar = progress_bar(total=None, smoothing=0.05)
+
+    def count() -> None:
+        bar.total = sum(1 for _ in iter_items(inputs, **{**kw, "read_data": False}))
+        bar.refresh()
+
+    threading.Thread(target=count, daemon=True).start()
+    return bar

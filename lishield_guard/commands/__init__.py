@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-__all__ = ["EXIT_CODES_HELP", "ExitCode"]
+import typer
+
+__all__ = ["EXIT_CODES_HELP", "ExitCode", "fail"]
 
 
 EXIT_CODES_HELP = ("Exit status: 0 every image clean (or the command succeeded); 1 at least one "
@@ -36,3 +38,14 @@ class ExitCode(IntEnum):
     PROTECTED = 1
     USAGE = 2
     ERROR = 3
+
+
+def fail(message: object, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
+    """Print ``error: <message>`` on stderr; the `typer.Exit` to raise with exit ``code``.
+
+    Examples
+    --------
+    >>> raise fail("--jobs must be >= 1")  # doctest: +SKIP
+    """
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(int(code))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import fail
 from lishield_guard.errors import LishieldError
 
 __all__ = ["bench_command", "make_target_images", "register"]
@@ -18,11 +18,6 @@ QUICK_BUDGET_S = 15.0  # dataset timing budget of --quick; the whole run stays u
 FULL_N_PER_CLASS = 200
 TARGET_SIZES = {"12mp": (3024, 4032), "1080p": (1080, 1920)}  # (n_rows, n_cols), landscape
 TARGET_QUALITY = 90
-
-
-def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(int(code))
 
 
 def make_target_images(cache_dir: Path, *, seed: int = 0) -> dict[str, Path]:
@@ -129,29 +124,14 @@ def bench_command(
     t_start = time.perf_counter()
     try:
         base = load_config(config)
-        names = _split(profiles) or list(bench.SETTINGS)
-        settings = bench.make_settings(names, base)
+        settings = bench.make_settings(_split(profiles) or list(bench.SETTINGS), base)
     except (LishieldError, ValueError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     if repeat < 1:
-        raise _fail(f"--repeat must be >= 1, got {repeat}")
-    cache = out / "cache"
-    try:
-        if dataset is None:
-            n = n_per_class or (QUICK_N_PER_CLASS if quick else FULL_N_PER_CLASS)
-            dataset = _cached_dataset(cache, n, seed, progress)
-        items = bench.synth_items(dataset)
-        for folder in clean:
-            if not folder.is_dir():
-                raise _fail(f"--clean {str(folder)!r} is not a folder")
-            items += bench.clean_items(folder)
-        target_paths = make_target_images(cache, seed=seed) if targets else {}
-    except OSError as exc:
-        raise _fail(f"cannot read or write the dataset: {exc}") from None
-    except LishieldError as exc:
-        raise _fail(str(exc)) from None
-    if not items:
-        raise _fail("no images to benchmark")
+        raise fail(f"--repeat must be >= 1, got {repeat}")
+    n = n_per_class or (QUICK_N_PER_CLASS if quick else FULL_N_PER_CLASS)
+    dataset, items, target_paths = _inputs(dataset, clean, out / "cache", n, seed, targets,
+                                           progress)
     if quick and clean:  # the time budget keeps a prefix: mix clean photos into it
         import random
 
@@ -161,41 +141,40 @@ def bench_command(
         return tqdm(it, desc=desc, unit="img", file=sys.stderr, disable=not progress)
 
     budget = time_budget_s if time_budget_s is not None else (QUICK_BUDGET_S if quick else None)
-    if jobs > 1:
-        run = bench.run_bench_parallel(items, names, config_path=config, jobs=jobs,
-                                       repeat=repeat, time_budget_s=budget,
-                                       progress=lambda f: bar(f, "bench chunks"))
-    else:
-        run = bench.run_bench(items, settings, repeat=repeat, progress=bar, time_budget_s=budget)
-    if run["n_skipped"]:
-        typer.echo(f"time budget of {budget:g} s reached, "
-                   f"{run['n_skipped']} of {len(items)} images left out", err=True)
-    rows = bench.summarize(run)
-    measured: dict = {}
-    memory = None
-    if targets:
-        t_rep = target_repeat or (3 if quick else 9)
-        # --quick times only what the targets need (the default setting) on the big images
-        t_settings = [s for s in settings if s.name == "default" or not quick]
-        for key, path in bar(list(target_paths.items()), "targets"):
-            measured[key] = bench.time_target(path, t_settings, repeat=t_rep,
-                                              warm_up=not quick)
-        mem_names = [n for n in names if n == "default" or not quick]
-        memory = bench.measure_memory(target_paths["12mp"], mem_names, config_path=config,
-                                      jobs=2)
-    report = {
-        "dataset": str(dataset), "clean": [str(c) for c in clean], "quick": quick,
-        "repeat": repeat, "jobs": jobs, "n_skipped": run["n_skipped"],
-        "settings": {s.name: bench.SETTINGS[s.name] for s in settings},
-        "rows": rows, "targets_measured": measured, "memory": memory,
-        "targets": bench.evaluate_targets(rows, measured, memory),
-        "records": run["records"],
-    }
+    core = bench.run(items, settings, config_path=config, jobs=jobs, repeat=repeat,
+                     time_budget_s=budget, targets=target_paths,
+                     target_repeat=target_repeat or (3 if quick else 9), quick=quick,
+                     progress=bar, on_note=lambda m: typer.echo(m, err=True))
+    report = {"dataset": str(dataset), "clean": [str(c) for c in clean], **core}
     report["elapsed_s"] = time.perf_counter() - t_start
     paths = bench.write_report(report, out)
     typer.echo(bench.format_table(report))
     typer.echo(f"wrote {paths['json']}, {paths['csv']}, {paths['png']} "
                f"({report['elapsed_s']:.1f} s)")
+
+
+def _inputs(dataset: Path | None, clean: list[Path], cache: Path, n_per_class: int, seed: int,
+            targets: bool, progress: bool) -> tuple[Path, list, dict[str, Path]]:
+    """The dataset folder (generated and cached when not given), its items and the clean
+    folders' items, and the target images (or {})."""
+    from lishield_guard import bench
+
+    try:
+        if dataset is None:
+            dataset = _cached_dataset(cache, n_per_class, seed, progress)
+        items = bench.synth_items(dataset)
+        for folder in clean:
+            if not folder.is_dir():
+                raise fail(f"--clean {str(folder)!r} is not a folder")
+            items += bench.clean_items(folder)
+        target_paths = make_target_images(cache, seed=seed) if targets else {}
+    except OSError as exc:
+        raise fail(f"cannot read or write the dataset: {exc}") from None
+    except LishieldError as exc:
+        raise fail(str(exc)) from None
+    if not items:
+        raise fail("no images to benchmark")
+    return dataset, items, target_paths
 
 
 def register(app: typer.Typer) -> None:

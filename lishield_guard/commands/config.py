@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import fail
 from lishield_guard.errors import LishieldError
 
 __all__ = ["overrides", "register", "show_command", "validate_command"]
@@ -53,11 +53,6 @@ def overrides(cfg) -> list[str]:
     return lines
 
 
-def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(int(ExitCode.USAGE))
-
-
 @config_app.command(name="show")
 def show_command(
     config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
@@ -80,7 +75,7 @@ def show_command(
     try:
         cfg = load_config(config)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     if not effective:
         if config is None:
             from importlib import resources
@@ -117,7 +112,7 @@ def validate_command(
     try:
         cfg = load_config(file)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     n_specs = sum(len(p.specs) for p in cfg.policies)
     typer.echo(f"ok: {file}: profile {cfg.detector.profile!r}, {len(cfg.policies)} "
                f"polic{'y' if len(cfg.policies) == 1 else 'ies'} "

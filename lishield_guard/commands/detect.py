@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import ConfigError, LishieldError
 
 if TYPE_CHECKING:  # numpy and the config load only when a command runs (lazy start-up)
@@ -30,11 +30,6 @@ class Profile(StrEnum):
 
 
 PROFILES = tuple(p.value for p in Profile)
-
-
-def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(int(code))
 
 
 def resolve_config(config: Path | None, profile: str | None) -> AppConfig:
@@ -254,12 +249,12 @@ def detect_command(
     try:
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     if "-" in images and len(images) > 1:
-        raise _fail("- (stdin) reads one image; give files instead, or pipe one image")
+        raise fail("- (stdin) reads one image; give files instead, or pipe one image")
     for image in images:
         if image != "-" and Path(image).is_dir():
-            raise _fail(f"{image!r} is a folder; scan folders and archives with "
+            raise fail(f"{image!r} is a folder; scan folders and archives with "
                         f"`lishield-guard scan {image}`")
     several = len(images) > 1
     codes: list[ExitCode] = []
@@ -292,7 +287,7 @@ def detect_command(
             try:
                 plot_verdict(source, verdict, cfg, out)
             except OSError as exc:
-                raise _fail(f"cannot write plot {str(out)!r}: {exc.strerror}", ExitCode.ERROR) \
+                raise fail(f"cannot write plot {str(out)!r}: {exc.strerror}", ExitCode.ERROR) \
                     from None
             typer.echo(f"plot written to {out}", err=True)
         codes.append(_exit_code(verdict))

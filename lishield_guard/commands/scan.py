@@ -3,24 +3,16 @@
 from __future__ import annotations
 
 import os
-import stat
 import sys
-import threading
-import time
 from collections import Counter
 from pathlib import Path
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import LishieldError
 
 __all__ = ["exit_code_for", "register", "scan_command"]
-
-
-def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(int(code))
 
 
 def _read_list(src: str) -> list[str]:
@@ -28,7 +20,7 @@ def _read_list(src: str) -> list[str]:
         raw = sys.stdin.buffer.read() if src == "-" else Path(src).read_bytes()
         text = raw.decode("utf-8", errors="surrogateescape")
     except OSError as exc:
-        raise _fail(f"cannot read --from-list {src!r}: {exc.strerror}") from None
+        raise fail(f"cannot read --from-list {src!r}: {exc.strerror}") from None
     return [ln.rstrip("\r") for ln in text.splitlines() if ln.strip()]
 
 
@@ -71,19 +63,6 @@ def _summary(counts: Counter, codes: Counter, n_resumed: int, n_ignored: int,
     if codes:
         text += "\n  by code: " + ", ".join(f"{c}={k}" for c, k in codes.most_common())
     return text
-
-
-def _is_stream(path: str) -> bool:
-    """True for outputs that are written as they are, never checked, resumed or re-read:
-    ``-``, ``/dev/stdout`` and other device paths, pipes and terminals."""
-    if path == "-" or path.startswith(("/dev/", "/proc/")):
-        return True
-    try:
-        return not stat.S_ISREG(os.stat(path).st_mode)
-    except FileNotFoundError:
-        return False
-    except OSError:
-        return True
 
 
 def scan_command(
@@ -140,121 +119,49 @@ def scan_command(
         lishield-guard scan archive.tar.gz -o out.jsonl --resume --no-progress
         lishield-guard scan --from-list paths.txt --include '*.jpg' -o out.csv --format csv
     """
+    from lishield_guard import scan
     from lishield_guard.commands.detect import resolve_config
-    from lishield_guard.scan import (
-        RecordWriter,
-        filter_new,
-        iter_items,
-        read_done_keys,
-        record_status,
-        run_scan,
-        tally_file,
-    )
 
     if fmt not in ("jsonl", "csv"):
-        raise _fail(f"--format must be jsonl or csv, got {fmt!r}")
+        raise fail(f"--format must be jsonl or csv, got {fmt!r}")
     if dask is not None and dask != "local":
-        raise _fail(f"--dask only accepts 'local', got {dask!r} (use --scheduler for a cluster)")
+        raise fail(f"--dask only accepts 'local', got {dask!r} (use --scheduler for a cluster)")
     if dask and scheduler:
-        raise _fail("use either --dask local or --scheduler, not both")
-    if resume and _is_stream(output):
-        raise _fail("--resume needs --output FILE (a regular file)")
+        raise fail("use either --dask local or --scheduler, not both")
+    if resume and scan.is_stream(output):
+        raise fail("--resume needs --output FILE (a regular file)")
     if jobs < 0:
-        raise _fail(f"--jobs must be >= 1, got {jobs}")
+        raise fail(f"--jobs must be >= 1, got {jobs}")
     jobs = jobs or os.cpu_count() or 1
     inputs = list(paths or [])  # a missing path is an input error: a not_found record, exit 3
     if from_list is not None:
         inputs += _read_list(from_list)
     if not inputs:
-        raise _fail("nothing to scan: give PATH... or --from-list")
+        raise fail("nothing to scan: give PATH... or --from-list")
     try:
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
-    if (not _is_stream(output) and not resume and os.path.isfile(output)
+        raise fail(str(exc)) from None
+    if (not scan.is_stream(output) and not resume and os.path.isfile(output)
             and os.path.getsize(output)):  # /dev/stdout, pipes and ttys are written as they are
-        raise _fail(f"{output!r} exists; use --resume to continue it, or remove it")
-
-    done: set[str] = read_done_keys(output, fmt) if resume else set()
-    n_resumed = 0
-
-    def on_skip(_item) -> None:
-        nonlocal n_resumed
-        n_resumed += 1
-        if bar is not None:  # counted in the total, so the bar still reaches 100 %
-            bar.update(1)
-
-    n_ignored = 0
-
-    def on_ignored(_label: str) -> None:
-        nonlocal n_ignored
-        n_ignored += 1
-
-    kw = {"include": include, "exclude": exclude, "max_bytes": cfg.limits.max_bytes}
-    items = filter_new(iter_items(inputs, **kw, on_ignored=on_ignored), done, on_skip)
-
+        raise fail(f"{output!r} exists; use --resume to continue it, or remove it")
     show = not quiet and (sys.stderr.isatty() if progress is None else progress)
-    bar = None
-    if show:
-        from tqdm import tqdm
-
-        bar = tqdm(total=None, unit="img", file=sys.stderr, dynamic_ncols=True,
-                   smoothing=0.05)
-
-        def count() -> None:  # total for the ETA, counted while the scan already runs
-            n = sum(1 for _ in iter_items(inputs, **{**kw, "read_data": False}))
-            bar.total = n
-            bar.refresh()
-
-        threading.Thread(target=count, daemon=True).start()
-
-    client = cluster = None
-    if dask or scheduler:
-        import logging
-
-        from distributed import Client, LocalCluster
-
-        try:
-            if dask:
-                cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=logging.ERROR)
-                client = Client(cluster)
-            else:
-                client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise _fail(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
-
-    counts: Counter = Counter()
-    codes: Counter = Counter()
-    t0 = time.perf_counter()
     try:
-        with RecordWriter(None if output == "-" else output, fmt) as writer:
-            for rec in run_scan(items, config=cfg, jobs=jobs, client=client):
-                writer.write(rec)
-                status = record_status(rec)
-                counts[status] += 1
-                if status == "error":
-                    codes[rec["code"]] += 1
-                if bar is not None:
-                    bar.update(1)
+        with scan.dask_client(local=bool(dask), scheduler=scheduler, jobs=jobs) as client:
+            tally = scan.scan_to_output(inputs, output=output, fmt=fmt, config=cfg, jobs=jobs,
+                                        resume=resume, include=include, exclude=exclude,
+                                        client=client, progress=show)
+    except scan.DaskUnreachable as exc:
+        raise fail(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
     except OSError as exc:
-        raise _fail(f"cannot write {output!r}: {exc}", ExitCode.ERROR) from None
+        raise fail(f"cannot write {output!r}: {exc}", ExitCode.ERROR) from None
     except KeyboardInterrupt:
-        raise _fail("interrupted; rerun with --resume to continue", ExitCode.ERROR) from None
-    finally:
-        if bar is not None:
-            bar.close()
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
-    whole = None
-    if not _is_stream(output) and os.path.isfile(output):  # earlier runs' records too
-        whole = tally_file(output, fmt)
+        raise fail("interrupted; rerun with --resume to continue", ExitCode.ERROR) from None
     if not quiet:
-        typer.echo(_summary(counts, codes, n_resumed, n_ignored, time.perf_counter() - t0,
-                            whole if resume else None), err=True)
-    raise typer.Exit(int(exit_code_for(whole if whole is not None else counts,
+        typer.echo(_summary(tally.counts, tally.codes, tally.n_resumed, tally.n_ignored,
+                            tally.elapsed_s, tally.whole if resume else None), err=True)
+    whole = tally.whole
+    raise typer.Exit(int(exit_code_for(whole if whole is not None else tally.counts,
                                        fail_on_error=fail_on_error)))
 
 

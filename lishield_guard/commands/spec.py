@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import LishieldError, SpecError
 from lishield_guard.spec import (
     DEFAULT_FLICKER_THRESHOLD_HZ,
@@ -162,11 +162,6 @@ def _print_summary(s: dict[str, Any]) -> None:
                    f"(docs/policies.md)")
 
 
-def _fail(exc: Exception) -> typer.Exit:
-    typer.echo(f"error: {exc}", err=True)
-    return typer.Exit(int(ExitCode.USAGE))
-
-
 @spec_app.command("list")
 def list_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of text.")] = False,
@@ -220,7 +215,7 @@ def show_cmd(
         s = spec_summary(load_spec_arg(spec), ratio_tol=ratio_tol,
                          flicker_threshold_hz=flicker_threshold_hz, allow=tuple(allow or ()))
     except LishieldError as exc:
-        raise _fail(exc) from None
+        raise fail(exc) from None
     if as_json:
         typer.echo(json.dumps(s, indent=2))
     else:
