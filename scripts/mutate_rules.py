@@ -138,24 +138,24 @@ MUTANTS: tuple[Mutant, ...] = (
     # --- one form changed, the other not
     _rule("calibrate-sweep-drops-fit", "calibrate.sweep_protected: only the grid rule "
           "(exact fits ignored)", "sweep_protected", "grid_rule(rho, alt, t, det) | fit_rule(",
-          "grid_rule(rho, alt, t, det) | 0 * fit_rule(", path="lishield_guard/calibrate.py",
-          extra=TABLE_TESTS),
+          "grid_rule(rho, alt, t, det) | 0 * fit_rule(",
+          path="lishield_guard/calibration/evidence.py", extra=TABLE_TESTS),
     _rule("detect-sweep-drops-fit", "rules.sweep_passes: only the grid rule (exact fits "
           "ignored)", "sweep_passes", " or fit_passes(entry.fit, det)", ""),
     # --- scan --resume
     Mutant("resume-rescans-all", "resume", "scan --resume reads no done keys: every input is "
            "scanned again and appended",
-           (Edit("lishield_guard/commands/scan.py", "scan_command",
+           (Edit("lishield_guard/scan.py", "scan_to_output",
                  "done: set[str] = read_done_keys(output, fmt) if resume else set()",
                  "done: set[str] = set()"),), RESUME_TESTS),
     Mutant("resume-truncates-and-rescans", "resume", "scan --resume empties the output and "
            "scans everything again (no duplicates, earlier records rewritten)",
-           (Edit("lishield_guard/commands/scan.py", "scan_command",
+           (Edit("lishield_guard/scan.py", "scan_to_output",
                  "done: set[str] = read_done_keys(output, fmt) if resume else set()",
                  "done: set[str] = set()\n    if resume:\n        open(output, 'w').close()"),),
            RESUME_TESTS),
     Mutant("resume-summary-uncounted", "resume", "scan --resume skips done inputs but its "
-           "summary does not count them", (Edit("lishield_guard/commands/scan.py",
+           "summary does not count them", (Edit("lishield_guard/scan.py",
                                                 "on_skip", "n_resumed += 1",
                                                 "n_resumed += 0"),), RESUME_TESTS),
     # --- issue #33 item 8: regressions the suite could not see (tests/test_regressions_33.py)
@@ -169,9 +169,9 @@ MUTANTS: tuple[Mutant, ...] = (
            (Edit("service/routes/screen.py", None, 'if code == "internal_error":',
                  'if False:'),),
            (f"{REGRESSION_TESTS}::test_detector_crash_in_batch_is_a_logged_500",)),
-    Mutant("member-backslash-kept", "issue33", "scan.py: archive member names no longer "
+    Mutant("member-backslash-kept", "issue33", "batch/listing.py: archive member names no longer "
            "normalise \\ to /, so ..\\x.jpg passes the traversal check",
-           (Edit("lishield_guard/scan.py", "unsafe_member_reason",
+           (Edit("lishield_guard/batch/listing.py", "unsafe_member_reason",
                  'norm = name.replace("\\\\", "/")', "norm = name"),),
            (f"{REGRESSION_TESTS}::test_backslash_member_names_are_caught",
             f"{REGRESSION_TESTS}::test_backslash_traversal_in_a_zip_is_recorded_unsafe")),
@@ -232,7 +232,7 @@ def _env(copy: Path) -> dict[str, str]:
 
 def _check_imports_from(copy: Path) -> None:
     """The copy, not the editable install of the working tree, is what the tests import."""
-    code = ("import lishield_guard, lishield_guard.detector, lishield_guard.calibrate, "
+    code = ("import lishield_guard, lishield_guard.detector, lishield_guard.calibration, "
             "lishield_guard.commands.scan; print(lishield_guard.__file__)")
     out = subprocess.run([sys.executable, "-c", code], cwd=copy, env=_env(copy),
                          capture_output=True, text=True)

@@ -37,7 +37,7 @@ def test_detector_stages_do_not_import_the_orchestration():
 
     import lishield_guard.detector as pkg
 
-    banned = ("lishield_guard.detector.pipeline", "lishield_guard.calibrate",
+    banned = ("lishield_guard.detector.pipeline", "lishield_guard.calibration",
               "lishield_guard.scan", "lishield_guard.cli", "lishield_guard.commands")
     bad = []
     for path in sorted(Path(pkg.__file__).parent.glob("*.py")):

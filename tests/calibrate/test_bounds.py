@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from lishield_guard.calibrate import far_upper_bound, images_needed, two_sided_upper
+from lishield_guard.calibration import far_upper_bound, images_needed, two_sided_upper
 from lishield_guard.stats import clopper_pearson
 
 

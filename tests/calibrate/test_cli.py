@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from lishield_guard.commands.calibrate import EVIDENCE_PREFIX, _code_key
+from lishield_guard.batch.cache import code_version
 from lishield_guard.config import load_config
 
 EXE = str(Path(sys.executable).with_name("lishield-guard"))
@@ -28,12 +28,12 @@ def calibrated(tiny_sets):
             str(tiny_sets["noise"]), "--positives", str(tiny_sets["pos"]), "--target-far",
             "0.7", "--out", str(out), "--report", str(rep), "--jobs", "2", "--no-progress",
             "--profiles", "cascade,paper"]
-    key = _code_key()
+    key = code_version()
     first = subprocess.run(args, capture_output=True, text=True, timeout=600)
     second = subprocess.run(args, capture_output=True, text=True, timeout=600)  # from cache
     # evidence is cached per version of the core's source: in a shared working tree another
     # edit between the two runs makes the second recompute (correctly)
-    return first, second, out, rep, key == _code_key()
+    return first, second, out, rep, key == code_version()
 
 
 def test_command_writes_config_and_report(calibrated):
@@ -48,7 +48,7 @@ def test_command_writes_config_and_report(calibrated):
     for name in ("summary.md", "roc.png", "heatmaps.png", "detection_by_kind.png",
                  "settings.jsonl", "certification.json"):
         assert (rep / name).stat().st_size > 0, name
-    assert list((rep / "cache").glob(f"{EVIDENCE_PREFIX}*.pkl"))
+    assert list((rep / "cache").glob("image_record-*.pkl"))
     summary = (rep / "summary.md").read_text()
     if same_code:
         assert "9 images from cache" in summary  # second run
@@ -107,7 +107,7 @@ def test_the_learned_threshold_is_chosen_and_certified(tiny_sets):
     profile at that threshold."""
     import numpy as np
 
-    from lishield_guard.calibrate import LearnedGrid, tail_threshold
+    from lishield_guard.calibration import LearnedGrid, tail_threshold
 
     root = tiny_sets["root"]
     out, rep = root / "learned.toml", root / "learned-report"
@@ -122,8 +122,8 @@ def test_the_learned_threshold_is_chosen_and_certified(tiny_sets):
     cert = json.loads((rep / "certification.json").read_text())
     assert cert["parts"]["certification"]["n_clean"] == 3
     assert "learned.threshold_logit" in load_config(out).header
-    assert list((rep / "cache").glob("lrn-*.pkl"))
-    assert not list((rep / "cache").glob(f"{EVIDENCE_PREFIX}*.pkl"))  # no pattern search
+    assert list((rep / "cache").glob("learned_record-*.pkl"))
+    assert not list((rep / "cache").glob("image_record-*.pkl"))  # no pattern search
     from lishield_guard import detect
 
     cfg = load_config(out)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from lishield_guard import calibrate as cal
+from lishield_guard import calibration as cal
 from lishield_guard.config import AppConfig, default_config
 from lishield_guard.detector.pipeline import decide
 

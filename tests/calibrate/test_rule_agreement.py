@@ -23,7 +23,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from lishield_guard.calibrate import fold_protected, sweep_protected, sweep_row, tone_confirmed
+from lishield_guard.calibration import fold_protected, sweep_protected, sweep_row, tone_confirmed
 from lishield_guard.config import (
     FIT_RHO_FLOOR,
     PERIODIC_MIN_PERIODS,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lishield_guard import calibrate as cal
-from lishield_guard.calibrate import Setting, select_setting, summarise
+from lishield_guard import calibration as cal
+from lishield_guard.calibration import Setting, select_setting, summarise
 from lishield_guard.config import default_config
 
 

@@ -8,8 +8,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from lishield_guard import calibrate as cal
-from lishield_guard.calibrate import Setting, claim, split_parts, stratum_key
+from lishield_guard import calibration as cal
+from lishield_guard.calibration import Setting, claim, split_parts, stratum_key
 
 
 @pytest.mark.parametrize(("row", "path", "want"), [
