@@ -15,10 +15,12 @@ import lishield_guard
 from lishield_guard import AppConfig, Limits, load_config
 from lishield_guard.threads import one_thread_per_worker
 from service.access_log import RequestContextMiddleware, configure_logging
-from service.deps import BodyBudget, DetectFn, DetectPool, ServiceState
+from service.deps import ServiceState
 from service.errors import install_error_handlers
+from service.limits import BodyBudget
 from service.metrics import Metrics
-from service.routes import ops, policies, screen
+from service.pool import DetectFn, DetectPool
+from service.routes import ops, policies, review, screen
 from service.settings import ServiceSettings
 
 __all__ = ["create_app", "effective_config"]
@@ -114,9 +116,8 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
                          lifespan=lifespan)
     app.state.service = state
     install_error_handlers(app)
-    for module in (screen, policies, ops):
+    for module in (screen, policies, ops, review):
         app.include_router(module.router)
-    app.include_router(__import__("service.routes.review", fromlist=["router"]).router)  # #23
     app.include_router(ops.metrics_router(
         protected=settings.protect_metrics and settings.api_token is not None))
     _tighten_openapi(app, settings)

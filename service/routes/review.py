@@ -23,15 +23,15 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from pydantic import BaseModel, Field
 
-from service.deps import ServiceState, get_service, read_image, require_token
+from service.deps import ServiceState, get_service, require_token
 from service.errors import ServiceError
+from service.parsing import read_image
 from service.schemas import ErrorBody
 
 __all__ = ["ReviewResult", "router"]
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static" / "review"
 ASSETS = {"review.js": "text/javascript", "review.css": "text/css"}  # the only files served
-_PLOT_SLOTS_KEY = "review_plot_slots"
 
 router = APIRouter(tags=["review"])
 
@@ -75,10 +75,9 @@ def _verdict_label(verdict) -> str:
 
 
 def _plot_slots(svc: ServiceState) -> asyncio.Semaphore:
-    slots = svc.extra.get(_PLOT_SLOTS_KEY)
-    if slots is None:
-        slots = svc.extra[_PLOT_SLOTS_KEY] = asyncio.Semaphore(svc.settings.max_concurrency)
-    return slots
+    if svc.plot_slots is None:
+        svc.plot_slots = asyncio.Semaphore(svc.settings.max_concurrency)
+    return svc.plot_slots
 
 
 async def _figure(svc: ServiceState, data: bytes, verdict) -> bytes:

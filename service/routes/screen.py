@@ -7,17 +7,10 @@ from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
 from lishield_guard import Verdict
-from service.deps import (
-    MULTIPART,
-    ServiceState,
-    get_service,
-    read_form,
-    read_image,
-    release_body,
-    require_token,
-    upload_bytes,
-)
+from lishield_guard.batch.types import IMAGE
+from service.deps import ServiceState, get_service, require_token
 from service.errors import ServiceError, describe
+from service.parsing import MULTIPART, read_form, read_image, release_body, upload_bytes
 from service.schemas import BatchEntry, BatchResult, ErrorBody, ScreenResult
 
 __all__ = ["router"]
@@ -25,8 +18,7 @@ __all__ = ["router"]
 router = APIRouter(prefix="/v1", tags=["screening"], dependencies=[Depends(require_token)])
 
 #: Image types the decoder reads; the bytes decide, whatever the declared type says.
-IMAGE_MEDIA_TYPES = ("image/jpeg", "image/png", "image/tiff", "image/webp", "image/bmp",
-                     "image/gif", "image/heic", "image/heif")
+IMAGE_MEDIA_TYPES = IMAGE.media_types  # the one type table (lishield_guard.batch.types)
 _IMAGE = {"type": "string", "format": "binary", "contentMediaType": "image/*", "minLength": 1,
           "description": "Image bytes: " + ", ".join(IMAGE_MEDIA_TYPES) + " (judged by the "
           "bytes; anything else is answered 415 or 422)."}
