@@ -214,6 +214,43 @@ def _plot_path(plot: Path, label: str, several: bool) -> Path:
     return plot / f"{Path(label).stem}.png"
 
 
+def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
+                plot: Path | None, several: bool) -> ExitCode:
+    """Detect on one image (a path, or - for stdin), print its verdict (and write its plot);
+    its exit code."""
+    from lishield_guard.detector import detect
+
+    if image == "-":
+        source: Any = sys.stdin.buffer.read()
+        label = "<stdin>"
+    else:
+        source, label = image, image
+    if image != "-" and not Path(image).exists():  # an input error, as in scan records
+        return _input_error(label, "no such file", "not_found")
+    try:
+        verdict = detect(source, cfg)
+        if explain and verdict.protected and verdict.profile == "default":
+            verdict = _with_physics(verdict, source, cfg)
+    except LishieldError as exc:
+        return _input_error(label, str(exc), exc.code)  # never clean
+    except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
+        return _input_error(label, f"internal error: {type(exc).__name__}: {exc}",
+                            "internal_error")
+    if as_json:
+        typer.echo(json.dumps({"path": label, **verdict.to_dict()}))
+    else:
+        typer.echo(_describe(verdict, label, explain=explain))
+    if plot is not None:
+        out = _plot_path(plot, label, several)
+        try:
+            plot_verdict(source, verdict, cfg, out)
+        except OSError as exc:
+            raise fail(f"cannot write plot {str(out)!r}: {exc.strerror}", ExitCode.ERROR) \
+                from None
+        typer.echo(f"plot written to {out}", err=True)
+    return _exit_code(verdict)
+
+
 def detect_command(
     images: Annotated[list[str], typer.Argument(
         metavar="IMG...", show_default=False,
@@ -244,8 +281,6 @@ def detect_command(
       lishield-guard detect a.jpg b.png --json
       lishield-guard detect photo.jpg --explain --plot verdict.png
     """
-    from lishield_guard.detector import detect
-
     try:
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
@@ -256,41 +291,8 @@ def detect_command(
         if image != "-" and Path(image).is_dir():
             raise fail(f"{image!r} is a folder; scan folders and archives with "
                         f"`lishield-guard scan {image}`")
-    several = len(images) > 1
-    codes: list[ExitCode] = []
-    for image in images:
-        if image == "-":
-            source: Any = sys.stdin.buffer.read()
-            label = "<stdin>"
-        else:
-            source, label = image, image
-        if image != "-" and not Path(image).exists():  # an input error, as in scan records
-            codes.append(_input_error(label, "no such file", "not_found"))
-            continue
-        try:
-            verdict = detect(source, cfg)
-            if explain and verdict.protected and verdict.profile == "default":
-                verdict = _with_physics(verdict, source, cfg)
-        except LishieldError as exc:
-            codes.append(_input_error(label, str(exc), exc.code))  # never clean
-            continue
-        except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
-            codes.append(_input_error(label, f"internal error: {type(exc).__name__}: {exc}",
-                                      "internal_error"))
-            continue
-        if as_json:
-            typer.echo(json.dumps({"path": label, **verdict.to_dict()}))
-        else:
-            typer.echo(_describe(verdict, label, explain=explain))
-        if plot is not None:
-            out = _plot_path(plot, label, several)
-            try:
-                plot_verdict(source, verdict, cfg, out)
-            except OSError as exc:
-                raise fail(f"cannot write plot {str(out)!r}: {exc.strerror}", ExitCode.ERROR) \
-                    from None
-            typer.echo(f"plot written to {out}", err=True)
-        codes.append(_exit_code(verdict))
+    codes = [_detect_one(image, cfg, explain=explain, as_json=as_json, plot=plot,
+                         several=len(images) > 1) for image in images]
     # protected wins over errors; an input error or an undetermined image is never clean
     if ExitCode.PROTECTED in codes:
         raise typer.Exit(int(ExitCode.PROTECTED))
