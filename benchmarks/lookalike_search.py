@@ -4,7 +4,7 @@ The exact fit's gain divides the barcode's misfit by the best steady square wave
 look-alike search that stops short of the true square wave inflates the gain of a PWM or
 mains light and can pass it as a barcode. This benchmark renders steady square waves (random
 period, duty, phase and exposure, behind the fit's high-pass, over a drifting scene plus
-noise) and runs the search with each number of refined starts (`detector.fit.SQUARE_REFINES`),
+noise) and runs the search with each number of refined starts (`detector.numerics.SQUARE_REFINES`),
 in a shuffled order per case so that machine noise falls on all settings alike.
 
 Each case's reference is the *oracle* rho: the correlation of the rows with the true square
@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
-from lishield_guard.detector import fit as fit_mod
-from lishield_guard.detector.fit import HIGHPASS_CYCLES, _highpass, lookalike_rho, square_rows
+from lishield_guard.detector import numerics as fit_mod
+from lishield_guard.detector.numerics import HIGHPASS_CYCLES, _highpass, lookalike_rho, square_rows
 from lishield_guard.stats import clopper_pearson
 
 

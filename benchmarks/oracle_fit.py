@@ -31,13 +31,8 @@ import numpy as np
 from lishield_guard import detect, load_config
 from lishield_guard.camera import CameraModel
 from lishield_guard.decode import decode
-from lishield_guard.detector.fit import (
-    _highpass,
-    linear_common,
-    linearise,
-    pattern_knots,
-    render_rows,
-)
+from lishield_guard.detector.fit import pattern_knots, render_rows
+from lishield_guard.detector.numerics import _highpass, linear_common, linearise
 from lishield_guard.detector.sweep import sweep_match
 from lishield_guard.detector.tones import scale_range_cpr_per_hz
 from lishield_guard.spec import get_preset

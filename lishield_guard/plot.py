@@ -28,7 +28,6 @@ import numpy as np
 __all__ = ["figure_caption", "plot_verdict", "verdict_figure", "verdict_png", "verdict_title"]
 
 CHANNEL_COLOURS = {"W": "tab:purple", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
-HIGHPASS_CYCLES = 1.5  # as detector.fit.HIGHPASS_CYCLES: content below this per period is ignored
 FIGSIZE_IN = (11.0, 9.5)
 DPI = 100
 
@@ -123,7 +122,7 @@ def figure_caption(verdict) -> str:
 
 def _highpass(n_rows: int, sigma_rows: float):
     """x minus its Gaussian trend of ``sigma_rows`` (mirror-extended), as the fit does."""
-    from lishield_guard.detector.sweep import highpass_gain, mirror_rfft
+    from lishield_guard.detector.numerics import highpass_gain, mirror_rfft
 
     gain = highpass_gain(n_rows, sigma_rows)
 
@@ -204,8 +203,8 @@ def _plane_rows(source, verdict, config, axis: int, channel: str) -> tuple[np.nd
 def _lookalike(y: np.ndarray, hp, fit: dict) -> tuple[np.ndarray, dict] | None:
     """Rows of the best steady square wave for high-passed rows ``y`` and its parameters
     (frequency in cycles per row, duty, phase and exposure in cycles, rho), from the evidence
-    when it carries them, else searched the way `detector.fit.lookalike_rho` searches."""
-    from lishield_guard.detector import fit as fit_mod
+    when it carries them, else searched the way `detector.numerics.lookalike_rho` searches."""
+    from lishield_guard.detector import numerics as fit_mod
 
     n = y.size
     rows = np.arange(n, dtype=np.float64)
@@ -400,7 +399,8 @@ def verdict_figure(source, verdict, config):
     channel = (info or {}).get("channel") or "W"
     blocks, row_scale = _plane_rows(source, verdict, config, axis,
                                     "L" if channel == "W" else channel)
-    from lishield_guard.detector.fit import linear_common, pattern_knots, render_rows
+    from lishield_guard.detector.fit import pattern_knots, render_rows
+    from lishield_guard.detector.numerics import HIGHPASS_CYCLES, linear_common
 
     x, _, _ = linear_common(blocks)
     n = x.size

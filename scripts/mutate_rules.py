@@ -101,8 +101,8 @@ MUTANTS: tuple[Mutant, ...] = (
           "(gain >= det.tones.min_fit_gain)", "(gain >= -np.inf)", group="defences"),
     _rule("gain-ignores-lookalike", "ModelFit.gain: rho^2 - rho_lookalike^2 -> rho^2 - 0.0 * "
           "rho_lookalike^2", "gain", "self.rho ** 2 - self.rho_lookalike ** 2",
-          "self.rho ** 2 - 0.0 * self.rho_lookalike ** 2", path="lishield_guard/detector/fit.py",
-          group="defences"),
+          "self.rho ** 2 - 0.0 * self.rho_lookalike ** 2",
+          path="lishield_guard/detector/results.py", group="defences"),
     _rule("steady-gate-off", "_axis_sweeps: planes a steady square wave fits at rho >= "
           "LOOKALIKE_DOMINANT_RHO are refined like any other", "_axis_sweeps",
           "if steady >= LOOKALIKE_DOMINANT_RHO:", "if False:",
@@ -113,7 +113,7 @@ MUTANTS: tuple[Mutant, ...] = (
           "passed = True", path="lishield_guard/detector/screen.py", group="defences"),
     _rule("steady-gate-at-0.95", "LOOKALIKE_DOMINANT_RHO = 0.99 -> 0.95 (more planes gated)",
           None, "LOOKALIKE_DOMINANT_RHO = 0.99", "LOOKALIKE_DOMINANT_RHO = 0.95",
-          path="lishield_guard/detector/fit.py", group="defences"),
+          path="lishield_guard/detector/numerics.py", group="defences"),
     # --- thresholds and terms of the pass rules, changed in the one place both forms use
     _rule("grid-rho-strict", "grid_rule: rho >= sweep.min_rho -> rho > sweep.min_rho",
           "grid_rule", "(rho >= det.sweep.min_rho)", "(rho > det.sweep.min_rho)"),

@@ -83,3 +83,52 @@ def test_command_functions_are_short():
     assert long <= LONG_COMMAND_FUNCTIONS, sorted(long - LONG_COMMAND_FUNCTIONS)
     assert not LONG_COMMAND_FUNCTIONS - long, ("shortened: drop from LONG_COMMAND_FUNCTIONS",
                                                sorted(LONG_COMMAND_FUNCTIONS - long))
+
+
+# The detector's stage modules in the order one image meets them (`detector.pipeline` runs
+# them): row profiles and usable blocks, spectra and tone tracks, the first stage, the learned
+# decision and its explanation, then the cascade's tones, fold, sweep, free-running timing,
+# exact fit and pass rules; the paper's Algorithm 1 is its own profile, last. SHARED modules
+# (typed results and stage names, shared numerics, emitter variants) import no stage.
+STAGE_ORDER = ("profiles", "usable", "spectra", "tracks", "screen", "learned", "decision",
+               "explain", "tones", "fold", "sweep", "freerun", "fit", "rules", "paper")
+SHARED = ("results", "numerics", "emitters")
+
+
+def _detector_imports(path) -> set[str]:
+    """Modules of `lishield_guard.detector` that a file imports (at any depth)."""
+    import ast
+
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            names = ([f"{node.module}.{a.name}" for a in node.names]
+                     if node.module == "lishield_guard.detector" else [node.module])
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        out |= {n.split(".")[2] for n in names
+                if n.startswith("lishield_guard.detector.") and n.count(".") >= 2}
+    return out
+
+
+def test_detector_stages_import_only_earlier_stages_and_shared_modules():
+    """Data enters each stage once, in order, and never climbs back: a stage module imports
+    earlier stages and the shared modules only; a shared module imports no stage."""
+    from pathlib import Path
+
+    import lishield_guard.detector as pkg
+
+    folder = Path(pkg.__file__).parent
+    modules = {p.stem for p in folder.glob("*.py")} - {"__init__", "pipeline"}
+    assert modules == set(STAGE_ORDER) | set(SHARED), "place a new module in STAGE_ORDER or SHARED"
+    bad = []
+    for name in sorted(modules):
+        if name in SHARED:
+            allowed = set()
+        else:
+            allowed = set(SHARED) | set(STAGE_ORDER[:STAGE_ORDER.index(name)])
+        bad += [f"{name} imports {m}" for m in sorted(_detector_imports(folder / f"{name}.py"))
+                if m not in allowed]
+    assert not bad

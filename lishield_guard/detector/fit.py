@@ -31,125 +31,48 @@ the exact physics of the capture:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from lishield_guard.config import FIT_RHO_FLOOR
 from lishield_guard.detector.emitters import cycles_range, phase_mode
 from lishield_guard.detector.freerun import free_running_starts
-from lishield_guard.detector.sweep import (
+from lishield_guard.detector.numerics import (
+    HIGHPASS_CYCLES,
+    MIN_BOX,
     START_SEPARATION,
+    _best_phase,
+    _box_transfer,
+    _corr,
+    _harmonics,
+    _highpass,
+    _nelder_mead,
     block_coherence_t,
-    highpass_gain,
     highpass_gain_at,
-    mirror_rfft,
-    quiet_weights,
+    linear_common,
+    lookalike_rho,
 )
+from lishield_guard.detector.results import ModelFit
 from lishield_guard.spec import BarcodeSpec
 
-__all__ = ["ModelFit", "DISPLAY_GAMMA", "chroma_leak", "linear_common", "linearise",
-           "lookalike_rho", "pattern_knots", "refine", "render_rows", "square_rows",
-           "steady_rho"]
+__all__ = ["chroma_leak", "pattern_knots", "refine", "render_rows"]
 
-DISPLAY_GAMMA = 2.2  # stored value ~ linear light ** (1 / gamma) (sRGB, unitless)
-HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignored (as fold.py)
 MAX_EXPOSURE_SLOTS = 4.0  # t_e x f_B: 1/500 s at f_B = 1600 Hz is 3.2 slots; the attack <= 3
-MIN_BOX = 1e-3  # exposures shorter than this (slots or cycles) are treated as this
-MAX_EVALS = 160  # Nelder-Mead evaluations per start
 FREE_MAX_EVALS = 300  # the same with each tone's phase free (7 parameters for M = 3)
 FREE_SUBPERIODS = 3  # continuous variants also start at 1/2 .. 1/this of the best period
 FREE_REFINES = 2  # continuous variants: the best fixed-phase fits whose tone phases are freed
 FREE_RUN_CANDIDATES = 12  # continuous variants: demodulated timing hypotheses (`freerun`)...
 FREE_RUN_STARTS = 3  # ... of which the exact model's best at distinct periods are refined
 FREE_RUN_EXPOSURES = (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)  # their exposures tried (slots)
-LOOKALIKE_DOMINANT_RHO = 0.99  # rows a steady square wave fits this well are not refined
 SCAN_CYCLE_STEP = 1.015  # c_1 scanned on a geometric grid of this ratio over its whole range
 SCAN_EXPOSURE_STEP_SLOTS = 0.1  # exposures scanned from 0 to M slots (e and e + M fit alike)
 SCAN_MIN_PHASES = 256  # phases per pattern period scanned (more when the template needs them)
 SCAN_HARMONICS_PER_CYCLE = 4  # template harmonics kept per cycle of the fastest tone per slot
 MATCHED_REFIT = True  # refit on matched-filter block weights (`_matched_refit`); calibration
-#                       positives (160: partial coverage + 60 full) +6 detected, none lost
-SQUARE_DUTIES = np.arange(1, 20) / 20.0  # look-alike start grid: duty 0.05 ... 0.95
-SQUARE_EXPOSURES = np.array([0.0, 0.15, 0.3, 0.5, 0.75, 1.5])  # box widths, look-alike cycles
-SQUARE_HARMONICS = 48  # harmonics of a candidate frequency in the start grid's Fourier series
-SQUARE_MIN_PHASES = 64  # phases per look-alike cycle scanned (more when the harmonics need it)
-SQUARE_PEAKS = 3
-SQUARE_REFINES = 4  # look-alike grid starts (best per candidate frequency) refined
 
 
-@dataclass(frozen=True)
-class ModelFit:
-    """Best exact-model fit of one spec channel to a plane's rows.
-
-    Attributes
-    ----------
-    spec, channel : str
-        Spec name and the channel whose template was fitted.
-    rho : float
-        Normalised correlation of the high-passed template with the high-passed linear rows.
-    rho_lookalike : float or None
-        The same for the best stationary square wave (any frequency, duty, phase, exposure);
-        None when ``rho`` is below `config.FIT_RHO_FLOOR` (not fitted; gain 0).
-    period_rows, cycles_f1, phase_slots, exposure_slots : float
-        Fitted pattern period M / f_B in rows, c_1 = f_1 / f_B, row 0's position in the
-        pattern and the exposure t_e x f_B, both in slots.
-    coherence_t : float
-        t statistic of the template's amplitude across column blocks (unitless).
-    n_periods : float
-        Pattern periods the frame holds.
-    chroma_leak : float or None
-        `chroma_leak` of the fitted template's amplitudes in the R, G, B planes; None when
-        not measured (no colour planes, or rho below FIT_RHO_FLOOR).
-    domain : str
-        Where the fit was made (``"linear"``: linear light, see `refine`).
-    """
-
-    spec: str
-    channel: str
-    rho: float
-    rho_lookalike: float | None
-    period_rows: float
-    cycles_f1: float
-    phase_slots: float
-    exposure_slots: float
-    coherence_t: float
-    n_periods: float
-    chroma_leak: float | None = None
-    domain: str = "linear"
-
-    @property
-    def gain(self) -> float:
-        """Energy explained beyond the look-alike over the energy left unexplained (unitless,
-        capped at 1e6): ``(rho^2 - rho_lookalike^2) / (1 - rho^2)``."""
-        if self.rho_lookalike is None:
-            return 0.0
-        return min((self.rho ** 2 - self.rho_lookalike ** 2) / max(1.0 - self.rho ** 2, 1e-6),
-                   1e6)
-
-    def to_dict(self) -> dict:
-        """JSON-ready form for Verdict.evidence."""
-        return {"spec": self.spec, "channel": self.channel, "rho": float(self.rho),
-                "rho_lookalike": (None if self.rho_lookalike is None
-                                  else float(self.rho_lookalike)),
-                "gain": float(self.gain),
-                "period_rows": float(self.period_rows),
-                "cycles_per_slot_f1": float(self.cycles_f1),
-                "phase_slots": float(self.phase_slots),
-                "exposure_slots": float(self.exposure_slots),
-                "coherence_t": float(self.coherence_t), "n_periods": float(self.n_periods),
-                "chroma_leak": (None if self.chroma_leak is None
-                                else float(self.chroma_leak)),
-                "domain": self.domain}
 
 
-def linearise(log_contrast: np.ndarray, gamma: float = DISPLAY_GAMMA) -> np.ndarray:
-    """Relative linear light ``expm1(gamma * x)`` of log contrast x (unitless, float64).
-
-    Values are clipped to |gamma x| <= 20 so that no overflow can occur.
-    """
-    x = np.asarray(log_contrast, dtype=np.float64)
-    return np.expm1(np.clip(gamma * x, -20.0, 20.0))
 
 
 class _KnotMaker:
@@ -243,56 +166,14 @@ def render_rows(u_knots: np.ndarray, on_knots: np.ndarray, u_slots: np.ndarray,
             - _cumulative(u_knots, on_knots, u_slots)) / e
 
 
-def square_rows(u_cycles: np.ndarray, duty: float, exposure_cycles: float) -> np.ndarray:
-    """Mean ON fraction of a square wave of the given duty over [u, u + exposure] (cycles)."""
-    e = max(float(exposure_cycles), MIN_BOX)
-
-    def cum(v):
-        fl = np.floor(v)
-        return fl * duty + np.minimum(v - fl, duty)
-
-    return (cum(u_cycles + e) - cum(u_cycles)) / e
 
 
-class _HighPass:
-    """x minus its Gaussian trend of sigma ``sigma_rows`` (mirror-extended, by FFT) along the
-    last axis of ``n_rows``; `gain_at` is its gain at a frequency (cycles per row)."""
-
-    def __init__(self, n_rows: int, sigma_rows: float):
-        self.sigma_rows = float(sigma_rows)
-        self._gain = highpass_gain(n_rows, sigma_rows)
-        self._n = n_rows
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        out = np.fft.irfft(mirror_rfft(x) * self._gain, n=2 * self._n, axis=-1)[..., :self._n]
-        return out - out.mean(axis=-1, keepdims=True)
-
-    def gain_at(self, freqs_cpr: np.ndarray) -> np.ndarray:
-        """Gain at ``freqs_cpr`` (cycles per row), away from the ends of the rows."""
-        return highpass_gain_at(freqs_cpr, self.sigma_rows)
 
 
-def _highpass(n_rows: int, sigma_rows: float) -> _HighPass:
-    """x minus its Gaussian trend (mirror-extended, by FFT) along the last axis."""
-    return _HighPass(n_rows, sigma_rows)
 
 
-def _corr(t: np.ndarray, y: np.ndarray, yy: float) -> float:
-    tt = float(t @ t)
-    if not (tt > 1e-18 and yy > 0):
-        return 0.0
-    return float(t @ y) / math.sqrt(tt * yy)
 
 
-def _nelder_mead(fun, x0: np.ndarray, steps: np.ndarray, *, max_evals: int = 0
-                 ) -> tuple[float, np.ndarray]:
-    from scipy.optimize import minimize  # lazy: the default profile never fits
-
-    simplex = np.vstack([x0] + [x0 + np.diag(steps)[k] for k in range(x0.size)])
-    res = minimize(fun, x0, method="Nelder-Mead",
-                   options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5,
-                            "maxfev": max_evals or MAX_EVALS})
-    return float(res.fun), np.asarray(res.x)
 
 
 class _Objective:
@@ -542,12 +423,6 @@ def _matched_refit(blocks_lin: np.ndarray, blocks_hp: np.ndarray, hp, model: _Ob
     return rho, th, y
 
 
-def linear_common(blocks_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The LED's common row signal in linear light: (`quiet_weights` mean of the blocks'
-    `linearise`d rows, the weights, the linearised blocks)."""
-    blocks_lin = linearise(np.asarray(blocks_log, dtype=np.float64))
-    weights = quiet_weights(blocks_lin)
-    return weights @ blocks_lin, weights, blocks_lin
 
 
 def chroma_leak(amplitudes_rgb: np.ndarray, channel: str) -> float:
@@ -608,135 +483,15 @@ def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
     return best[1:]
 
 
-def _harmonics(y: np.ndarray, k: np.ndarray, step: complex) -> np.ndarray:
-    """Y_k = sum_i y_i exp(k i step) of the rows ``y``; ``step = -2 pi j f`` for harmonics of
-    a fundamental of f cycles per row."""
-    return np.exp(np.outer(k, np.arange(y.size)) * step) @ y
 
 
-def _box_transfer(widths: np.ndarray, k: np.ndarray, period: float = 1.0) -> np.ndarray:
-    """(n_widths, K): mean over [u, u + e] of exp(2 pi j k u / period), an exposure box's
-    transfer at harmonic k (widths e in the units of ``period``; below `MIN_BOX` as MIN_BOX)."""
-    w = np.outer(np.maximum(widths, MIN_BOX), k) * (2j * math.pi / period)
-    return np.expm1(w) / w
 
 
-def _best_phase(cross_k: np.ndarray, power_k: np.ndarray, n_rows: int, yy: float,
-                min_phases: int) -> tuple[float, int, float]:
-    """Best correlation over templates and every phase, from Fourier series: (rho, template
-    index, phase in cycles of the fundamental).
-
-    ``cross_k`` (T, K) holds each template's high-passed harmonic k (k = 1..K) times the rows'
-    conj(Y_k), ``power_k`` (T, K) its squared magnitude; the correlation at phase phi is
-    2 Re sum_k cross_k exp(2 pi i k phi) over sqrt(2 n sum_k power_k * yy), one inverse FFT for
-    every phase (exact for whole cycles over the rows, close otherwise).
-    """
-    k_max = cross_k.shape[1]
-    n_phases = 1 << int(math.ceil(math.log2(max(min_phases, 4 * k_max))))
-    z = np.zeros((cross_k.shape[0], n_phases), dtype=np.complex128)
-    z[:, 1:k_max + 1] = cross_k
-    num = np.fft.ifft(z, axis=1).real * (2.0 * n_phases)
-    norms = np.sqrt(np.maximum(2.0 * n_rows * power_k.sum(axis=1), 1e-30) * yy)
-    rho = num / norms[:, None]
-    i, j = np.unravel_index(int(np.argmax(rho)), rho.shape)
-    return float(rho[i, j]), int(i), j / n_phases
 
 
-def square_candidates(y: np.ndarray) -> list[float]:
-    """Fundamentals (cycles per row) a steady square wave behind the rows ``y`` may have: the
-    SQUARE_PEAKS strongest spectral lines and their halves and thirds."""
-    n = y.size
-    nfft = 8 * n
-    power = np.abs(np.fft.rfft(y * np.hanning(n), nfft)) ** 2
-    freqs = np.arange(power.size) / nfft
-    power[(freqs < 1.0 / n) | (freqs > 0.45)] = 0.0
-    cands: list[float] = []
-    for _ in range(SQUARE_PEAKS):
-        k = int(np.argmax(power))
-        if not power[k] > 0:
-            break
-        cands += [freqs[k], freqs[k] / 2, freqs[k] / 3]
-        power[max(0, k - 8): k + 9] = 0.0
-    return cands
 
 
-def steady_rho(blocks_log: np.ndarray, period_rows: float) -> float:
-    """How well a steady square wave (`lookalike_rho`) fits a plane's rows, high-passed for
-    patterns of ``period_rows``: the rows a fit of any barcode must explain better.
-
-    Rows it fits at rho >= `LOOKALIKE_DOMINANT_RHO` are not worth an exact fit: to pass even
-    the laxest gain rule (0.5) a barcode would have to fit them at rho >= 0.993. On
-    development captures no passing fit had a look-alike above 0.9, while PWM light,
-    periodic textures and plain sinusoids reach 0.98-0.999.
-    """
-    blocks_log = np.asarray(blocks_log, dtype=np.float64)
-    if blocks_log.ndim != 2 or blocks_log.shape[1] < 8 or not period_rows > 0:
-        return 0.0
-    x = linear_common(blocks_log)[0]
-    hp = _highpass(blocks_log.shape[1], period_rows / (2 * math.pi * HIGHPASS_CYCLES))
-    return lookalike_rho(hp(x), hp)
 
 
-def lookalike_rho(y_hp: np.ndarray, hp) -> float:
-    """Best correlation of a stationary square wave (any frequency, duty, phase, exposure)
-    with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
-
-    Candidate fundamentals are the periodogram's strongest peaks and their half and third (a
-    square wave's fundamental is not always its strongest line after the high-pass). For each
-    candidate, `_square_start` scores every duty and exposure of a grid at every phase at
-    once; the best start of each of the `SQUARE_REFINES` best candidates is refined with
-    Nelder-Mead on the exact, high-passed template, and the best refined fit is returned.
-
-    The earlier start grid had 8 phases: a high-duty light's short dark pulse fell between
-    them, so the search often started at a harmonic and stopped there (a 213 Hz PWM of duty
-    0.84 scored 0.735 where the square wave fits at 0.985); `benchmarks/lookalike_search.py`
-    measures the misses.
-    """
-    y = np.asarray(y_hp, dtype=np.float64)
-    n = y.size
-    yy = float(y @ y)
-    if n < 8 or not yy > 0:
-        return 0.0
-    cands = square_candidates(y)
-    if not cands:
-        return 0.0
-    rows = np.arange(n, dtype=np.float64)
-    gain_at = getattr(hp, "gain_at", None)
-    starts = sorted((_square_start(y, yy, f0, gain_at) for f0 in cands), key=lambda s: -s[0])
-
-    def loss(th):
-        f, d, ph, e = th
-        if not (f > 0 and 0.02 <= d <= 0.98 and 0.0 <= e <= 3.0):
-            return 1.0
-        return -_corr(hp(square_rows(f * rows + ph, d, e)), y, yy)
-
-    best = 0.0
-    for _, x0 in starts[:SQUARE_REFINES]:
-        val, _ = _nelder_mead(loss, x0, np.array([0.01 * x0[0], 0.05, 0.05, 0.05]))
-        best = max(best, -val)
-    return float(min(best, 1.0))
 
 
-def _square_start(y: np.ndarray, yy: float, f0_cpr: float, gain_at) -> tuple[float, np.ndarray]:
-    """Best (approximate rho, [frequency, duty, phase, exposure]) of a square wave of
-    fundamental ``f0_cpr`` over the grid of `SQUARE_DUTIES` x `SQUARE_EXPOSURES` x every phase.
-
-    A square wave of duty d, box-smoothed over e cycles, has Fourier coefficients
-    S_k = (1 - exp(-2 pi i k d)) / (2 pi i k) times the box's (exp(2 pi i k e) - 1) /
-    (2 pi i k e); row i sits at u_i = f0 i + phi, so its correlation with the rows is
-    2 Re sum_k g_k S_k B_k conj(Y_k) exp(2 pi i k phi), Y_k = sum_i y_i exp(-2 pi i k f0 i),
-    g_k the high-pass gain (``gain_at``; 1 when None): `_best_phase` scores every phase with
-    one inverse FFT, as for `_scan_start`'s barcode templates.
-    """
-    k_max = int(max(1, min(SQUARE_HARMONICS, math.floor(0.5 / f0_cpr))))
-    k = np.arange(1, k_max + 1, dtype=np.float64)
-    g = gain_at(k * f0_cpr) if gain_at is not None else np.ones(k_max)
-    s_k = -np.expm1(np.outer(SQUARE_DUTIES, k) * (-2j * math.pi)) / (2j * math.pi * k)
-    box = _box_transfer(SQUARE_EXPOSURES, k)
-    t_k = (s_k[:, None, :] * box[None, :, :] * g).reshape(-1, k_max)
-    y_k = _harmonics(y, k, -2j * math.pi * f0_cpr)
-    rho, i, phase = _best_phase(t_k * np.conj(y_k), np.abs(t_k) ** 2, y.size, yy,
-                                SQUARE_MIN_PHASES)
-    d = SQUARE_DUTIES[i // SQUARE_EXPOSURES.size]
-    e = SQUARE_EXPOSURES[i % SQUARE_EXPOSURES.size]
-    return rho, np.array([f0_cpr, d, phase, e])

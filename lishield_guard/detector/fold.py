@@ -17,7 +17,6 @@ of distinct cycle counts fits (a |sin| arch, or k equal PWM cycles).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -25,7 +24,9 @@ import scipy.fft
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
 
 from lishield_guard.detector.emitters import cycles_range, phase_mode
+from lishield_guard.detector.numerics import HIGHPASS_CYCLES
 from lishield_guard.detector.profiles import gaussian_smooth
+from lishield_guard.detector.results import FoldMatch
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["FoldMatch", "candidate_periods", "fold", "fold_match", "refine_period"]
@@ -34,29 +35,9 @@ N_PHASE_BINS = 96
 N_CYCLE_STEPS = 160
 EXPOSURE_FRACTIONS = (0.0, 0.03, 0.08, 0.16)  # box smoothing, as a fraction of one slot
 MIN_PERIODS = 2.0
-HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which the fold ignores content
 MAX_TONE_CPR = 0.45  # a tone above this is aliased or lost in the JPEG grid
 
 
-@dataclass(frozen=True)
-class FoldMatch:
-    """Best template fit of one spec to a folded row signal."""
-
-    spec: str
-    rho: float
-    period_rows: float
-    cycles_f1: float
-    fold_snr: float
-    n_periods: float
-    rho_lookalike: float = 0.0
-
-    def to_dict(self) -> dict:
-        """JSON-ready form for Verdict.evidence."""
-        return {"spec": self.spec, "rho": float(self.rho),
-                "rho_lookalike": float(self.rho_lookalike),
-                "period_rows": float(self.period_rows),
-                "cycles_per_slot_f1": float(self.cycles_f1),
-                "fold_snr": float(self.fold_snr), "n_periods": float(self.n_periods)}
 
 
 def candidate_periods(x: np.ndarray, *, min_rows: float, max_rows: float, n: int = 4

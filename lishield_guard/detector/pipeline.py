@@ -39,11 +39,12 @@ from lishield_guard.detector.decision import (
 )
 from lishield_guard.detector.emitters import cycles_range, emitter_variants, variant_label
 from lishield_guard.detector.explain import match_specs, peak_tones
-from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, refine, steady_rho
+from lishield_guard.detector.fit import refine
 from lishield_guard.detector.fold import candidate_periods, fold_match, refine_period
+from lishield_guard.detector.numerics import LOOKALIKE_DOMINANT_RHO, steady_rho
 from lishield_guard.detector.paper import run_paper
 from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
-from lishield_guard.detector.results import FoldResult, SweepResult
+from lishield_guard.detector.results import FoldResult, SpecMatch, Stage, SweepResult
 from lishield_guard.detector.rules import (
     fold_passes,
     grid_passes,
@@ -54,7 +55,7 @@ from lishield_guard.detector.rules import (
 from lishield_guard.detector.screen import jpeg_grid_cpr, screen_plane
 from lishield_guard.detector.spectra import axis_too_small
 from lishield_guard.detector.sweep import sweep_match
-from lishield_guard.detector.tones import SpecMatch, match_spec, scale_range_cpr_per_hz
+from lishield_guard.detector.tones import match_spec, scale_range_cpr_per_hz
 from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
 from lishield_guard.detector.usable import full_scale_of, unusable_reason
 from lishield_guard.spec import BarcodeSpec
@@ -435,7 +436,7 @@ def _cleared_by_screen(spec: BarcodeSpec, chans: dict[str, PlaneAnalysis], scree
     need = det.tones.min_tones_rgb if spec.is_rgb else det.tones.min_tones
     return SpecMatch(spec.name, 0.0, {}, {}, 0, need, 0.0, 0, False,
                      f"first stage: {why}; tone tracks and pattern search skipped",
-                     stage="first stage")
+                     stage=Stage.FIRST)
 
 
 def _fold_stage(m: SpecMatch, spec: BarcodeSpec, fold: FoldResult | None,
@@ -444,11 +445,11 @@ def _fold_stage(m: SpecMatch, spec: BarcodeSpec, fold: FoldResult | None,
     if fold is None:
         return m
     if not fold_passes(fold, det):
-        return replace(m, fold=fold, stage="fold")
+        return replace(m, fold=fold, stage=Stage.FOLD)
     reason = (f"the stripes repeat every {fold.match.period_rows:.1f} rows and the "
               f"folded pattern fits {spec.name} (rho={fold.rho:.2f}, "
               f"{fold.match.cycles_f1:.2f} cycles of f_1 per slot)")
-    return replace(m, protected=True, reason=reason, fold=fold, stage="fold")
+    return replace(m, protected=True, reason=reason, fold=fold, stage=Stage.FOLD)
 
 
 def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, entries: list[SweepResult],
@@ -462,7 +463,7 @@ def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, entries: list[SweepResult],
     if sw is None:
         return m
     if not passing:
-        return replace(m, sweep=sw, stage="sweep" if sw.fit is None else "exact fit")
+        return replace(m, sweep=sw, stage=Stage.SWEEP if sw.fit is None else Stage.EXACT_FIT)
     if not grid_passes(sw, det):
         fit = sw.fit
         reason = (f"{spec.name}'s exact capture model ({sw.channel}: period "
@@ -476,13 +477,13 @@ def _sweep_stage(m: SpecMatch, spec: BarcodeSpec, entries: list[SweepResult],
                   + ("" if fit.chroma_leak is None else
                      f" and in its own colour plane only (chroma leak "
                      f"{fit.chroma_leak:.2f})"))
-        return replace(m, protected=True, reason=reason, sweep=sw, stage="exact fit")
+        return replace(m, protected=True, reason=reason, sweep=sw, stage=Stage.EXACT_FIT)
     reason = (f"{spec.name}'s pattern ({sw.channel}), tiled every "
               f"{sw.match.period_rows:.1f} rows ({sw.match.n_periods:.2f} periods in the "
               f"frame), fits the stripes (rho={sw.rho:.2f}, look-alike "
               f"{sw.rho_lookalike:.2f}) with the same amplitude in every column "
               f"block (t={sw.coherence_t:.1f})")
-    return replace(m, protected=True, reason=reason, sweep=sw, stage="sweep")
+    return replace(m, protected=True, reason=reason, sweep=sw, stage=Stage.SWEEP)
 
 
 def screen_specs(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
@@ -796,13 +797,13 @@ def _verdict(candidates, config: AppConfig, skipped: list[str], timings: dict,
     axis, pid, m = max(candidates, key=lambda c: (c[2].protected, c[2].score, c[2].n_matched))
     # the evidence lists MAX_CANDIDATES: most tones first, then those the search looked at
     tried = sorted(({"axis": a, "policy": p, **c.to_dict()} for a, p, c in candidates),
-                   key=lambda d: (-d["n_matched"], d["stage"] == "first stage", -d["purity"]))
+                   key=lambda d: (-d["n_matched"], d["stage"] == Stage.FIRST, -d["purity"]))
     evidence = {"reason": m.reason, "axis": axis, "stage": m.stage, "best": m.to_dict(),
                 "candidates": tried[:MAX_CANDIDATES], "orientation_exif": orientation,
                 "format": fmt}
     # matches / required count the deciding stage's evidence: tones for the tone tracks, one
     # pattern fit of one needed for folding, the sweep and the exact fit
-    pattern = m.protected and m.stage != "tones"
+    pattern = m.protected and m.stage != Stage.TONES
     return Verdict(protected=m.protected, policy=pid if m.protected else None,
                    matches=1 if pattern else m.n_matched, required=1 if pattern else m.required,
                    evidence=evidence,

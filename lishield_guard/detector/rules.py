@@ -14,8 +14,7 @@ import math
 import numpy as np
 
 from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, DetectorConfig
-from lishield_guard.detector.fit import ModelFit
-from lishield_guard.detector.results import FoldResult, SweepResult
+from lishield_guard.detector.results import FoldResult, ModelFit, SweepResult
 
 __all__ = ["fit_passes", "fit_rule", "fold_passes", "fold_rule", "grid_passes", "grid_rule",
            "sweep_passes", "tone_check_on", "tone_fit_confirms", "tone_rule"]

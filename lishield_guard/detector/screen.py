@@ -31,7 +31,7 @@ column-coherent pattern too: frames whose peak sits on a harmonic of that grid
 
 A plane that has stripes is then asked whether they are *steady*: when one stationary square
 wave (any frequency, duty, phase and exposure: `fit.lookalike_rho`) fits its rows at rho
->= `fit.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
+>= `numerics.LOOKALIKE_DOMINANT_RHO`, the stripes are a PWM-dimmed or mains-flickering light
 or a regular texture, and no barcode could explain the rows well enough to pass even the
 laxest gain rule; the plane is cleared as well.
 """
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO, steady_rho
+from lishield_guard.detector.numerics import LOOKALIKE_DOMINANT_RHO, steady_rho
 from lishield_guard.detector.tracks import PlaneAnalysis, Track, part_tracks, peak_threshold
 
 __all__ = ["PARTS", "ScreenResult", "jpeg_grid_cpr", "screen_plane"]

@@ -11,7 +11,6 @@ counts), which makes rho the exact normalised correlation of the tiled template 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -19,17 +18,24 @@ import scipy.fft
 
 from lishield_guard.detector.emitters import cycles_range
 from lishield_guard.detector.fold import (
-    HIGHPASS_CYCLES,
     N_PHASE_BINS,
     _lookalike_templates,
     _phase_sums,
     _prepared,
     _templates,
 )
+from lishield_guard.detector.numerics import (
+    HIGHPASS_CYCLES,
+    START_SEPARATION,
+    block_coherence_t,
+    highpass_gain,
+    mirror_rfft,
+    quiet_weights,
+)
+from lishield_guard.detector.results import SweepMatch
 from lishield_guard.spec import BarcodeSpec
 
-__all__ = ["SweepMatch", "block_coherence_t", "highpass_gain", "highpass_gain_at",
-           "mirror_rfft", "quiet_weights", "sweep_match"]
+__all__ = ["sweep_match"]
 
 SWEEP_EXPOSURES = (0.0, 0.1, 0.3, 0.6, 1.0, 1.5)  # box widths t_e x f_B, in slots
 SWEEP_CYCLE_STEP = 0.08  # c_1 grid step: a slot with c cycles drifts < 1/8 cycle between steps
@@ -37,37 +43,9 @@ SWEEP_MAX_PERIODS = 4.0  # the sweep covers periods >= n_rows / this (folding co
 SWEEP_DRIFT = 1 / 12  # grid step: the last row's phase moves <= this fraction of a period
 SWEEP_REFINE_STEPS = 7  # around each target's best grid period, within +- half a step
 SWEEP_MIN_ROWS = 32  # fewer rows hold no pattern worth tiling
-START_SEPARATION = 0.04  # refinement starts differ in period by more than this (relative)
 VAR_FLOOR = 1e-3  # template variance over rows, relative to its energy, below which rho is 0
 
 
-@dataclass(frozen=True)
-class SweepMatch:
-    """Best tiled-template fit of one spec channel to a row signal (no repetition needed)."""
-
-    spec: str
-    rho: float
-    rho_lookalike: float
-    period_rows: float
-    cycles_f1: float
-    exposure_slots: float
-    coherence_t: float
-    n_periods: float
-    switching_hz: float = 0.0
-    row_rate_hz: float = 0.0
-    starts: tuple = ()  # best grid fits at distinct periods (see _Target.starts)
-
-    def to_dict(self) -> dict:
-        """JSON-ready form for Verdict.evidence (f_B and row rate implied by the fit, the
-        latter as if the image was not resized)."""
-        return {"spec": self.spec, "rho": float(self.rho),
-                "rho_lookalike": float(self.rho_lookalike),
-                "period_rows": float(self.period_rows),
-                "cycles_per_slot_f1": float(self.cycles_f1),
-                "switching_hz": float(self.switching_hz),
-                "row_rate_hz_if_not_resized": float(self.row_rate_hz),
-                "exposure_slots": float(self.exposure_slots),
-                "coherence_t": float(self.coherence_t), "n_periods": float(self.n_periods)}
 
 
 @lru_cache(maxsize=64)
@@ -87,20 +65,10 @@ def _period_grid(n_rows: int, lo: float, hi: float, drift: float) -> np.ndarray:
     return np.array(out)
 
 
-def mirror_rfft(x: np.ndarray) -> np.ndarray:
-    """Spectrum of x mirror-extended to twice its length along the last axis (no edge jump)."""
-    return np.fft.rfft(np.concatenate([x, x[..., ::-1]], axis=-1), axis=-1)
 
 
-def highpass_gain_at(freqs_cpr: np.ndarray, sigma_rows: float) -> np.ndarray:
-    """Gain at ``freqs_cpr`` (cycles per row) of x minus its Gaussian trend of sigma
-    ``sigma_rows``."""
-    return 1.0 - np.exp(-2.0 * math.pi ** 2 * sigma_rows ** 2 * np.square(freqs_cpr))
 
 
-def highpass_gain(n_rows: int, sigma_rows: float) -> np.ndarray:
-    """`highpass_gain_at` on `mirror_rfft`'s bins."""
-    return highpass_gain_at(np.fft.rfftfreq(2 * n_rows), sigma_rows)
 
 
 def _highpass_fn(x: np.ndarray):
@@ -209,46 +177,8 @@ class _Target:
         return tuple(out)
 
 
-def quiet_weights(blocks: np.ndarray, iterations: int = 4) -> np.ndarray:
-    """Weights (summing to 1) combining column blocks into the least noisy common row signal.
-
-    Every block carries the same LED signal plus its own scene and noise; the best linear
-    combination weights each block by the inverse of its non-common power, estimated from its
-    residual against the current weighted mean (a few fixed-point iterations from equal
-    weights; each block's own mean is removed first). A block of sky then counts more than a
-    block of gravel.
-    """
-    y = np.asarray(blocks, dtype=np.float64)
-    y = y - y.mean(axis=-1, keepdims=True)
-    k = y.shape[0]
-    w = np.full(k, 1.0 / max(k, 1))
-    for _ in range(iterations if k > 2 else 0):
-        resid = np.mean((y - w @ y) ** 2, axis=1)
-        floor = max(float(resid.max()), 1e-300) * 1e-6
-        inv = 1.0 / np.maximum(resid, floor)
-        w = inv / inv.sum()
-    return w
 
 
-def block_coherence_t(blocks_hp: np.ndarray, template_hp: np.ndarray,
-                      weights: np.ndarray | None = None) -> float:
-    """t statistic (unitless, capped at 1e6) of a zero-mean template's least-squares amplitude
-    across column blocks (rows of ``blocks_hp``, zero mean): the LED adds the same light to
-    every block, scene structure does not. 0 for a flat template or fewer than 2 blocks.
-
-    With ``weights`` (inverse noise powers, any scale) the amplitude is their weighted mean and
-    its standard error the weighted one; equal weights give the ordinary one-sample t.
-    """
-    tt = float(template_hp @ template_hp)
-    k = blocks_hp.shape[0]
-    if not tt > 0 or k < 2:
-        return 0.0
-    amp = blocks_hp @ template_hp / tt
-    w = np.ones(k) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    mean = float(w @ amp)
-    spread = math.sqrt(max(float(w @ (amp - mean) ** 2), 0.0) / (k - 1))
-    return float(min(mean / max(spread, 1e-12 * max(abs(mean), 1e-30)), 1e6))
 
 
 def _phase_slots(spec: BarcodeSpec, shift: int, exposure_index: int) -> float:

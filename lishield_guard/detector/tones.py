@@ -10,95 +10,21 @@ is the fraction of frames (short windows down the rows) whose significant peak l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lishield_guard.config import DetectorConfig
+from lishield_guard.detector.results import SpecMatch
 from lishield_guard.detector.tracks import PlaneAnalysis
 from lishield_guard.spec import BarcodeSpec
 
-if TYPE_CHECKING:  # the pattern stages' results ride along; tones does not run those stages
-    from lishield_guard.detector.results import FoldResult, SweepResult
-
-__all__ = ["SpecMatch", "match_spec", "scale_range_cpr_per_hz"]
+__all__ = ["match_spec", "scale_range_cpr_per_hz"]
 
 LOG_BIN = 0.002  # histogram bin width in ln(cycles/row)
 MIN_FRAMES = 2  # a tone seen in one frame only is not evidence
 RESOLVE_CYCLES = 1.0  # tone spacing x window length needed to tell two tones apart
 
 
-@dataclass(frozen=True)
-class SpecMatch:
-    """Best placement of one spec's tones on the band tracks.
-
-    Attributes
-    ----------
-    spec : str
-        Spec name.
-    sigma_cpr_per_hz : float
-        Fitted common scale (cycles per row per Hz = row time in s x downscale).
-    occupancy : dict
-        channel -> list of per-tone occupancies (fraction of rows), in tone order.
-    matched : dict
-        channel -> list of matched tone frequencies in Hz.
-    n_matched : int
-        Tones matched over all channels.
-    purity : float
-        Matched occupancy / significant fraction of the bands used (unitless).
-    switches : int
-        Changes from one matched tone to another down the rows (symbol timing evidence).
-    protected : bool
-        All decision rules hold.
-    reason : str
-        Why the rules hold or which one fails.
-    fold : results.FoldResult or None
-        The best fold fit, when folding ran.
-    sweep : results.SweepResult or None
-        The period-sweep entry (with its exact fit) that decided or came closest, when the
-        sweep ran.
-    stage : str
-        The stage that decided: ``"first stage"`` (no pattern search), ``"tones"``,
-        ``"fold"``, ``"sweep"`` (the grid fit) or ``"exact fit"``; for a spec no stage flagged,
-        the last stage that looked.
-    """
-
-    spec: str
-    sigma_cpr_per_hz: float
-    occupancy: dict
-    matched: dict
-    n_matched: int
-    required: int
-    purity: float
-    switches: int
-    protected: bool
-    reason: str
-    fold: FoldResult | None = None
-    sweep: SweepResult | None = None
-    stage: str = "tones"
-
-    @property
-    def score(self) -> float:
-        """Evidence strength in [0, 1]: purity times the fraction of required tones found."""
-        if self.protected and (self.fold or self.sweep):
-            return float((self.fold if self.sweep is None else self.sweep).rho)
-        if self.required <= 0:
-            return 0.0
-        return float(min(1.0, self.n_matched / self.required) * min(1.0, self.purity))
-
-    def to_dict(self) -> dict:
-        """JSON-ready form for Verdict.evidence."""
-        return {"spec": self.spec, "sigma_cpr_per_hz": self.sigma_cpr_per_hz,
-                "row_rate_hz_if_not_resized": (1.0 / self.sigma_cpr_per_hz
-                                               if self.sigma_cpr_per_hz > 0 else None),
-                "occupancy": {c: [float(o) for o in v] for c, v in self.occupancy.items()},
-                "matched_hz": self.matched, "n_matched": self.n_matched,
-                "required": self.required, "purity": float(self.purity),
-                "switches": self.switches, "reason": self.reason,
-                "fold": None if self.fold is None else self.fold.to_dict(),
-                "sweep": None if self.sweep is None else self.sweep.to_dict(),
-                "stage": self.stage}
 
 
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:

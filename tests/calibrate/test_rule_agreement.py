@@ -33,10 +33,8 @@ from lishield_guard.config import (
     SweepConfig,
     ToneConfig,
 )
-from lishield_guard.detector.fold import FoldMatch
-from lishield_guard.detector.results import FoldResult, SweepResult
+from lishield_guard.detector.results import FoldMatch, FoldResult, SweepMatch, SweepResult
 from lishield_guard.detector.rules import fold_passes, sweep_passes, tone_fit_confirms
-from lishield_guard.detector.sweep import SweepMatch
 
 # The two constants the rules use, restated: the literal rules below use these numbers.
 TONE_RHO_FLOOR = 0.8  # config.FIT_RHO_FLOOR

@@ -9,8 +9,8 @@ import pytest
 
 from lishield_guard import PRESETS
 from lishield_guard.detector.fit import pattern_knots, refine, render_rows
+from lishield_guard.detector.numerics import block_coherence_t, quiet_weights
 from lishield_guard.detector.profiles import block_row_profiles, merge_blocks
-from lishield_guard.detector.sweep import block_coherence_t, quiet_weights
 
 
 @pytest.mark.parametrize("n_cols, blocks, sub", [(640, 8, 4), (1001, 8, 4), (37, 8, 4),

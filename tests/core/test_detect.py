@@ -118,7 +118,7 @@ def test_steady_wave_plane_is_gated_and_its_grid_fit_fails_only_on_the_lookalike
     look-alike margin keeps it clean (catches ``rho - rho_lookalike`` losing its look-alike).
     With the first stage on, `screen.screen_plane` clears the plane by the same test (catches
     that gate disabled)."""
-    from lishield_guard.detector.fit import LOOKALIKE_DOMINANT_RHO
+    from lishield_guard.detector.numerics import LOOKALIKE_DOMINANT_RHO
 
     img = make_led_image(None, flicker=_flicker(kind, freq_hz, level), n_rows=LOOKALIKE_ROWS,
                          n_cols=LOOKALIKE_COLS)

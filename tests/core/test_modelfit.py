@@ -11,14 +11,12 @@ import pytest
 from core_led_model import row_waveform
 
 from lishield_guard import PRESETS
-from lishield_guard.detector.fit import (
+from lishield_guard.detector.fit import pattern_knots, refine, render_rows
+from lishield_guard.detector.numerics import (
     HIGHPASS_CYCLES,
     _highpass,
     linearise,
     lookalike_rho,
-    pattern_knots,
-    refine,
-    render_rows,
     square_rows,
 )
 from lishield_guard.detector.sweep import sweep_match
@@ -178,7 +176,7 @@ def test_lookalike_finds_narrow_pulses_at_any_phase():
 def test_square_start_scores_every_phase_exactly_for_whole_cycles():
     """The start grid's Fourier-series correlation equals the time-domain correlation of the
     start it returns when the rows hold whole cycles (no high-pass: unit gain)."""
-    from lishield_guard.detector.fit import _square_start
+    from lishield_guard.detector.numerics import _square_start
 
     n, period = 800, 80.0
     rows = np.arange(n, dtype=float)

@@ -216,7 +216,7 @@ def test_the_evidence_lists_searched_candidates_before_cleared_ones():
     looked at are kept ahead of those the first stage cleared (same tone count): what
     evaluate.py's "stage reached" reads from the verdict."""
     from lishield_guard.detector.pipeline import MAX_CANDIDATES, _verdict
-    from lishield_guard.detector.tones import SpecMatch
+    from lishield_guard.detector.results import SpecMatch
 
     def cand(axis, name, stage):
         return (axis, "p", SpecMatch(name, 0.0, {}, {}, 0, 2, 0.0, 0, False, "r", stage=stage))
