@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import re
@@ -10,6 +11,8 @@ import time
 import uuid
 from typing import Any
 
+import pythonjsonlogger.core
+import pythonjsonlogger.json
 from starlette.requests import Request
 
 from service.errors import error_response
@@ -21,21 +24,29 @@ ACCESS_LOGGER = "lishield_guard.service.access"
 _REQUEST_ID_RE = re.compile(r"^[A-Za-z0-9._:\-]{1,128}$")
 
 
-class JsonFormatter(logging.Formatter):
-    """One JSON object per record: time, level, logger, message and the record's ``fields``."""
+class JsonFormatter(pythonjsonlogger.json.JsonFormatter):
+    """One JSON object per record (python-json-logger): ``ts`` (UTC, milliseconds), ``level``,
+    ``logger``, ``msg``, then the record's ``fields`` (``extra={"fields": {...}}``) and ``exc``
+    when an exception is logged; compact separators, anything else as ``str``."""
 
-    def format(self, record: logging.LogRecord) -> str:
-        out: dict[str, Any] = {
-            "ts": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created))
-            + f".{int(record.msecs):03d}Z",
-            "level": record.levelname.lower(),
-            "logger": record.name,
-            "msg": record.getMessage(),
-        }
-        out.update(getattr(record, "fields", {}))
-        if record.exc_info:
-            out["exc"] = self.formatException(record.exc_info)
-        return json.dumps(out, separators=(",", ":"), default=str)
+    def __init__(self) -> None:
+        super().__init__("%(levelname)s %(name)s %(message)s",
+                         rename_fields={"levelname": "level", "name": "logger",
+                                        "message": "msg", "exc_info": "exc"},
+                         reserved_attrs=[*pythonjsonlogger.core.RESERVED_ATTRS, "fields"],
+                         json_serializer=functools.partial(json.dumps, separators=(",", ":")),
+                         json_default=str)
+
+    def add_fields(self, log_data: dict[str, Any], record: logging.LogRecord,
+                   message_dict: dict[str, Any]) -> None:
+        log_data["ts"] = (time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created))
+                          + f".{int(record.msecs):03d}Z")
+        super().add_fields(log_data, record, message_dict)
+        log_data["level"] = str(log_data["level"]).lower()
+        exc = log_data.pop("exc", None)
+        log_data.update(getattr(record, "fields", {}))
+        if exc is not None:
+            log_data["exc"] = exc
 
 
 def configure_logging(level: str = "INFO") -> None:
