@@ -1,6 +1,9 @@
 # lishield-guard: the two commands a fresh clone needs are `make run` and `make test`.
 #   make run  [PORT=8000] [HOST=127.0.0.1]   install what running needs, serve the demo
 #   make test                                install the dev tools too, run the test suite
+#   make lock                                re-pin requirements/*.lock (pip-tools)
+# Installs are pinned by the lock files (pip constraints: exactly the versions tested), while
+# pyproject.toml keeps the lower bounds a library user installs against.
 PY ?= python3
 PORT ?= 8000
 HOST ?= 127.0.0.1
@@ -8,23 +11,35 @@ VENV := .venv
 BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.installed-run
 DEV_STAMP := $(VENV)/.installed-dev
+RUN_LOCK := requirements/run.lock
+DEV_LOCK := requirements/dev.lock
 IS_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo yes)
 
-.PHONY: run test lint bench clean venv tools mutants train
+.PHONY: run test lint bench clean venv tools mutants train lock
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# What running needs: the package and its runtime dependencies, nothing else.
-$(RUN_STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e .
+# What running needs: the package and its runtime dependencies, nothing else, at the versions
+# of requirements/run.lock.
+$(RUN_STAMP): pyproject.toml $(RUN_LOCK) | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -c $(RUN_LOCK) -e .
 	touch $@
 
-# Tests: the runtime plus the `dev` extra (pytest, hypothesis, httpx, selenium, ...).
-$(DEV_STAMP): pyproject.toml $(RUN_STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+# Tests: the runtime plus the `dev` extra (pytest, hypothesis, httpx, selenium, ...), at the
+# versions of requirements/dev.lock.
+$(DEV_STAMP): pyproject.toml $(DEV_LOCK) $(RUN_STAMP)
+	$(BIN)/python -m pip install --quiet -c $(DEV_LOCK) -e '.[dev]'
 	touch $@
+
+# Re-pin the lock files from pyproject.toml's bounds (after changing a dependency).
+PIP_COMPILE = $(BIN)/pip-compile --quiet --strip-extras --no-emit-index-url \
+	--no-emit-find-links --no-emit-trusted-host --annotation-style line
+lock: | $(BIN)/python
+	$(BIN)/python -m pip install --quiet 'pip-tools>=7.4'
+	$(PIP_COMPILE) --output-file $(RUN_LOCK) pyproject.toml
+	$(PIP_COMPILE) --extra dev --output-file $(DEV_LOCK) pyproject.toml
 
 venv: $(RUN_STAMP)
 
