@@ -773,4 +773,3 @@ def _jsonable(obj):
     if isinstance(obj, np.generic):
         return _jsonable(obj.item())
     return obj
-

@@ -487,4 +487,3 @@ def _split_info(pt: _Parts, ok_c, ok_p, n_tc: int, n_tp: int, certify, fraction:
                      [str(p) in ok_paths for p, _, _ in pt.tune_p]),
             n_groups([g for g, m in zip(pt.pgroups, pt.pmask, strict=True) if m],
                      [str(p) in ok_paths for p, _, _ in pt.cert_p])]}
-

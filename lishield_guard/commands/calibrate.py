@@ -90,104 +90,62 @@ def _quick_sets(root: Path, *, jobs: int, progress: bool) -> tuple[list[Path], P
     return [photos, looks], pos
 
 
-_CLEAN = Annotated[
-    list[Path],
-    typer.Option(
-        "--clean",
-        metavar="DIR",
-        help="Folder of clean images, no barcodes (repeatable). Required unless --quick.",
-    ),
-]
-_POSITIVES = Annotated[
-    Path | None,
-    typer.Option(
-        "--positives",
-        metavar="DIR",
-        help="Folder of barcode captures (synth dataset layout). Required unless --quick.",
-    ),
-]
-_OUT = Annotated[
-    Path | None,
-    typer.Option(
-        "--out",
-        metavar="FILE",
-        help="Calibrated config TOML to write. Default with --quick: REPORT/calibrated.toml.",
-    ),
-]
-_REPORT = Annotated[
-    Path | None,
-    typer.Option(
-        "--report",
-        metavar="DIR",
-        help="Report folder: summary.md, plots, tables, evidence cache. Default with --quick: "
-        "./calibrate-quick.",
-    ),
-]
-_CERTIFY = Annotated[
-    Path | None,
-    typer.Option(
-        "--certify",
-        metavar="DIR",
-        help="Independent folder of clean images to certify the chosen setting on; every "
-        "--clean image then tunes (positives are still split).",
-    ),
-]
-_CERTIFY_FRACTION = Annotated[
-    float,
-    typer.Option(
-        "--certify-fraction",
-        help="Share of the clean images (unless --certify) and of the positives held out for "
-        "certification, in (0, 1).",
-    ),
-]
-_SPLIT_SEED = Annotated[
-    int, typer.Option("--split-seed", help="Seed of the tuning / certification split.")
-]
-_TARGET_FAR = Annotated[
-    float | None,
-    typer.Option(
-        "--target-far",
-        help="Target image false-alarm rate, to be shown by the exact one-sided 95% bound on "
-        f"the certification part. Default 0.001 ({QUICK_TARGET_FAR:g} with --quick).",
-    ),
-]
-_QUICK = Annotated[
-    bool,
-    typer.Option(
-        "--quick",
-        help="Calibrate on small built-in sets (scikit-image photo variants, synthetic "
-        "look-alikes and captures) to see the whole report in a few minutes.",
-    ),
-]
-_CONFIG = Annotated[Path | None, typer.Option("--config", help="Base config (default: shipped).")]
-_JOBS = Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (default: all cores).")]
-_PROFILES = Annotated[
-    str,
-    typer.Option(
-        "--profiles",
-        help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
-        "one cheap measurement per image), cascade (the pattern search's thresholds; "
-        "seconds per striped image), paper (Algorithm 1).",
-    ),
-]
-_NO_CACHE = Annotated[bool, typer.Option("--no-cache", help="Do not read or write the cache.")]
-_DRY_RUN = Annotated[
-    bool,
-    typer.Option(
-        "--dry-run",
-        help="Print the split (per stratum and source groups) and what its certification part "
-        "can show, then stop before any image is analysed.",
-    ),
-]
-_PROGRESS = Annotated[
-    bool, typer.Option("--progress/--no-progress", help="Progress bars on stderr.")
-]
-_QUIET = Annotated[
-    bool,
-    typer.Option(
-        "--quiet", "-q", hidden=True, help="Same as --no-progress (kept for old scripts)."
-    ),
-]
+_CLEAN = Annotated[list[Path], typer.Option(
+    "--clean", metavar="DIR",
+    help="Folder of clean images, no barcodes (repeatable). Required unless --quick.")]
+_POSITIVES = Annotated[Path | None, typer.Option(
+    "--positives", metavar="DIR",
+    help="Folder of barcode captures (synth dataset layout). Required unless --quick.")]
+_OUT = Annotated[Path | None, typer.Option(
+    "--out", metavar="FILE",
+    help="Calibrated config TOML to write. Default with --quick: REPORT/calibrated.toml.")]
+_REPORT = Annotated[Path | None, typer.Option(
+    "--report", metavar="DIR",
+    help="Report folder: summary.md, plots, tables, evidence cache. Default with --quick: "
+         "./calibrate-quick.")]
+_CERTIFY = Annotated[Path | None, typer.Option(
+    "--certify", metavar="DIR",
+    help="Independent folder of clean images to certify the chosen setting on; every "
+         "--clean image then tunes (positives are still split).")]
+_CERTIFY_FRACTION = Annotated[float, typer.Option(
+    "--certify-fraction",
+    help="Share of the clean images (unless --certify) and of the positives held out for "
+         "certification, in (0, 1).")]
+_SPLIT_SEED = Annotated[int, typer.Option(
+    "--split-seed",
+    help="Seed of the tuning / certification split.")]
+_TARGET_FAR = Annotated[float | None, typer.Option(
+    "--target-far",
+    help="Target image false-alarm rate, to be shown by the exact one-sided 95% bound on "
+         f"the certification part. Default 0.001 ({QUICK_TARGET_FAR:g} with --quick).")]
+_QUICK = Annotated[bool, typer.Option(
+    "--quick",
+    help="Calibrate on small built-in sets (scikit-image photo variants, synthetic "
+         "look-alikes and captures) to see the whole report in a few minutes.")]
+_CONFIG = Annotated[Path | None, typer.Option(
+    "--config",
+    help="Base config (default: shipped).")]
+_JOBS = Annotated[int, typer.Option(
+    "--jobs", "-j",
+    help="Worker processes (default: all cores).")]
+_PROFILES = Annotated[str, typer.Option(
+    "--profiles",
+    help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
+         "one cheap measurement per image), cascade (the pattern search's thresholds; "
+         "seconds per striped image), paper (Algorithm 1).")]
+_NO_CACHE = Annotated[bool, typer.Option(
+    "--no-cache",
+    help="Do not read or write the cache.")]
+_DRY_RUN = Annotated[bool, typer.Option(
+    "--dry-run",
+    help="Print the split (per stratum and source groups) and what its certification part "
+         "can show, then stop before any image is analysed.")]
+_PROGRESS = Annotated[bool, typer.Option(
+    "--progress/--no-progress",
+    help="Progress bars on stderr.")]
+_QUIET = Annotated[bool, typer.Option(
+    "--quiet", "-q", hidden=True,
+    help="Same as --no-progress (kept for old scripts).")]
 
 
 def calibrate_command(

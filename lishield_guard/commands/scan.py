@@ -66,68 +66,53 @@ def _summary(counts: Counter, codes: Counter, n_resumed: int, n_ignored: int,
     return text
 
 
-_PATHS = Annotated[
-    list[str],
-    typer.Argument(metavar="PATH...", help="Files, folders, .zip and .tar[.gz] archives."),
-]
-_OUTPUT = Annotated[
-    str,
-    typer.Option(
-        "--output", "-o", metavar="FILE", help="Output file (JSON Lines or CSV), or - for stdout."
-    ),
-]
-_FMT = Annotated[str, typer.Option("--format", help="jsonl or csv.")]
-_FROM_LIST = Annotated[
-    str | None,
-    typer.Option(
-        "--from-list", metavar="FILE", help="Also scan the paths listed in FILE (- = stdin)."
-    ),
-]
-_INCLUDE = Annotated[
-    list[str],
-    typer.Option(
-        "--include", metavar="GLOB", help="Only scan matching images in folders/archives."
-    ),
-]
-_EXCLUDE = Annotated[
-    list[str],
-    typer.Option("--exclude", metavar="GLOB", help="Skip matching files, folders and archives."),
-]
-_JOBS = Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (default: all cores).")]
-_RESUME = Annotated[
-    bool, typer.Option("--resume", help="Append to --output, skipping inputs already recorded.")
-]
-_DASK = Annotated[
-    str | None,
-    typer.Option("--dask", metavar="local", help="Run on a Dask LocalCluster with --jobs workers."),
-]
-_SCHEDULER = Annotated[
-    str | None,
-    typer.Option(
-        "--scheduler", metavar="tcp://HOST:PORT", help="Run on an existing Dask scheduler."
-    ),
-]
-_CONFIG = Annotated[Path | None, typer.Option("--config", help="Config TOML (default: shipped).")]
-_PROFILE = Annotated[
-    str | None, typer.Option("--profile", help="Detector profile: default|cascade|paper.")
-]
-_PROGRESS = Annotated[
-    bool | None,
-    typer.Option(
-        "--progress/--no-progress",
-        help="Progress bar on stderr (default: when stderr is a terminal).",
-    ),
-]
-_FAIL_ON_ERROR = Annotated[
-    bool,
-    typer.Option(
-        "--fail-on-error/--no-fail-on-error",
-        help="Exit 3 when, with nothing protected, records "
-        "hold input errors or undetermined results (default); "
-        "--no-fail-on-error exits 0 then.",
-    ),
-]
-_QUIET = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
+_PATHS = Annotated[list[str], typer.Argument(
+    metavar="PATH...",
+    help="Files, folders, .zip and .tar[.gz] archives.")]
+_OUTPUT = Annotated[str, typer.Option(
+    "--output", "-o", metavar="FILE",
+    help="Output file (JSON Lines or CSV), or - for stdout.")]
+_FMT = Annotated[str, typer.Option(
+    "--format",
+    help="jsonl or csv.")]
+_FROM_LIST = Annotated[str | None, typer.Option(
+    "--from-list", metavar="FILE",
+    help="Also scan the paths listed in FILE (- = stdin).")]
+_INCLUDE = Annotated[list[str], typer.Option(
+    "--include", metavar="GLOB",
+    help="Only scan matching images in folders/archives.")]
+_EXCLUDE = Annotated[list[str], typer.Option(
+    "--exclude", metavar="GLOB",
+    help="Skip matching files, folders and archives.")]
+_JOBS = Annotated[int, typer.Option(
+    "--jobs", "-j",
+    help="Worker processes (default: all cores).")]
+_RESUME = Annotated[bool, typer.Option(
+    "--resume",
+    help="Append to --output, skipping inputs already recorded.")]
+_DASK = Annotated[str | None, typer.Option(
+    "--dask", metavar="local",
+    help="Run on a Dask LocalCluster with --jobs workers.")]
+_SCHEDULER = Annotated[str | None, typer.Option(
+    "--scheduler", metavar="tcp://HOST:PORT",
+    help="Run on an existing Dask scheduler.")]
+_CONFIG = Annotated[Path | None, typer.Option(
+    "--config",
+    help="Config TOML (default: shipped).")]
+_PROFILE = Annotated[str | None, typer.Option(
+    "--profile",
+    help="Detector profile: default|cascade|paper.")]
+_PROGRESS = Annotated[bool | None, typer.Option(
+    "--progress/--no-progress",
+    help="Progress bar on stderr (default: when stderr is a terminal).")]
+_FAIL_ON_ERROR = Annotated[bool, typer.Option(
+    "--fail-on-error/--no-fail-on-error",
+    help="Exit 3 when, with nothing protected, records "
+         "hold input errors or undetermined results (default); "
+         "--no-fail-on-error exits 0 then.")]
+_QUIET = Annotated[bool, typer.Option(
+    "--quiet", "-q",
+    help="No progress bar or summary.")]
 
 
 def scan_command(

@@ -71,10 +71,6 @@ SCAN_HARMONICS_PER_CYCLE = 4  # template harmonics kept per cycle of the fastest
 MATCHED_REFIT = True  # refit on matched-filter block weights (`_matched_refit`); calibration
 
 
-
-
-
-
 class _KnotMaker:
     """`pattern_knots` of one spec channel as a function of c_1 (the tone ratios and slot
     order are looked up once, not at each of the fit's evaluations)."""
@@ -164,16 +160,6 @@ def render_rows(u_knots: np.ndarray, on_knots: np.ndarray, u_slots: np.ndarray,
     e = max(float(exposure_slots), MIN_BOX)
     return (_cumulative(u_knots, on_knots, u_slots + e)
             - _cumulative(u_knots, on_knots, u_slots)) / e
-
-
-
-
-
-
-
-
-
-
 
 
 class _Objective:
@@ -423,8 +409,6 @@ def _matched_refit(blocks_lin: np.ndarray, blocks_hp: np.ndarray, hp, model: _Ob
     return rho, th, y
 
 
-
-
 def chroma_leak(amplitudes_rgb: np.ndarray, channel: str) -> float:
     """How far a fitted template's amplitudes in the R, G, B planes stray from the colour of
     the light it models (unitless, capped at 1e6; 0 = exactly the LED's colour).
@@ -481,17 +465,3 @@ def _scan_start(knots, y: np.ndarray, m: int, period_rows: float,
         if rho > best[0]:
             best = (rho, float(c), m * phase, float(exposures[i_e]))
     return best[1:]
-
-
-
-
-
-
-
-
-
-
-
-
-
-

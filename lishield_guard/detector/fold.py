@@ -38,8 +38,6 @@ MIN_PERIODS = 2.0
 MAX_TONE_CPR = 0.45  # a tone above this is aliased or lost in the JPEG grid
 
 
-
-
 def candidate_periods(x: np.ndarray, *, min_rows: float, max_rows: float, n: int = 4
                       ) -> list[float]:
     """Periods (rows) at the strongest local maxima of the normalised autocorrelation."""

@@ -144,8 +144,6 @@ class ModelFit:
                 "domain": self.domain}
 
 
-
-
 @dataclass(frozen=True)
 class FoldResult:
     """Best fold fit of one spec, for one emitter variant, over its channels' planes.

@@ -46,8 +46,6 @@ SWEEP_MIN_ROWS = 32  # fewer rows hold no pattern worth tiling
 VAR_FLOOR = 1e-3  # template variance over rows, relative to its energy, below which rho is 0
 
 
-
-
 @lru_cache(maxsize=64)
 def _sweep_cycles(f1_hz: float, n_tones: int) -> tuple[float, ...]:
     """c_1 values swept over `emitters.cycles_range` in steps of SWEEP_CYCLE_STEP."""
@@ -63,12 +61,6 @@ def _period_grid(n_rows: int, lo: float, hi: float, drift: float) -> np.ndarray:
         out.append(p)
         p *= 1.0 + max(drift * p / n_rows, 0.002)
     return np.array(out)
-
-
-
-
-
-
 
 
 def _highpass_fn(x: np.ndarray):
@@ -175,10 +167,6 @@ class _Target:
                     out.append((rho, p, float(self.cycles[ci]),
                                 _phase_slots(self.spec, shift, ei), float(SWEEP_EXPOSURES[ei])))
         return tuple(out)
-
-
-
-
 
 
 def _phase_slots(spec: BarcodeSpec, shift: int, exposure_index: int) -> float:

@@ -25,8 +25,6 @@ MIN_FRAMES = 2  # a tone seen in one frame only is not evidence
 RESOLVE_CYCLES = 1.0  # tone spacing x window length needed to tell two tones apart
 
 
-
-
 def scale_range_cpr_per_hz(config: DetectorConfig) -> tuple[float, float]:
     """Physically possible sigma: [1 / max_row_rate_hz, max_downscale / min_row_rate_hz]."""
     pr = config.profiles
