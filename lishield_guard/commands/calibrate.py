@@ -11,7 +11,6 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Annotated
 
 import typer
 
@@ -90,83 +89,8 @@ def _quick_sets(root: Path, *, jobs: int, progress: bool) -> tuple[list[Path], P
     return [photos, looks], pos
 
 
-_CLEAN = Annotated[list[Path], typer.Option(
-    "--clean", metavar="DIR",
-    help="Folder of clean images, no barcodes (repeatable). Required unless --quick.")]
-_POSITIVES = Annotated[Path | None, typer.Option(
-    "--positives", metavar="DIR",
-    help="Folder of barcode captures (synth dataset layout). Required unless --quick.")]
-_OUT = Annotated[Path | None, typer.Option(
-    "--out", metavar="FILE",
-    help="Calibrated config TOML to write. Default with --quick: REPORT/calibrated.toml.")]
-_REPORT = Annotated[Path | None, typer.Option(
-    "--report", metavar="DIR",
-    help="Report folder: summary.md, plots, tables, evidence cache. Default with --quick: "
-         "./calibrate-quick.")]
-_CERTIFY = Annotated[Path | None, typer.Option(
-    "--certify", metavar="DIR",
-    help="Independent folder of clean images to certify the chosen setting on; every "
-         "--clean image then tunes (positives are still split).")]
-_CERTIFY_FRACTION = Annotated[float, typer.Option(
-    "--certify-fraction",
-    help="Share of the clean images (unless --certify) and of the positives held out for "
-         "certification, in (0, 1).")]
-_SPLIT_SEED = Annotated[int, typer.Option(
-    "--split-seed",
-    help="Seed of the tuning / certification split.")]
-_TARGET_FAR = Annotated[float | None, typer.Option(
-    "--target-far",
-    help="Target image false-alarm rate, to be shown by the exact one-sided 95% bound on "
-         f"the certification part. Default 0.001 ({QUICK_TARGET_FAR:g} with --quick).")]
-_QUICK = Annotated[bool, typer.Option(
-    "--quick",
-    help="Calibrate on small built-in sets (scikit-image photo variants, synthetic "
-         "look-alikes and captures) to see the whole report in a few minutes.")]
-_CONFIG = Annotated[Path | None, typer.Option(
-    "--config",
-    help="Base config (default: shipped).")]
-_JOBS = Annotated[int, typer.Option(
-    "--jobs", "-j",
-    help="Worker processes (default: all cores).")]
-_PROFILES = Annotated[str, typer.Option(
-    "--profiles",
-    help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
-         "one cheap measurement per image), cascade (the pattern search's thresholds; "
-         "seconds per striped image), paper (Algorithm 1).")]
-_NO_CACHE = Annotated[bool, typer.Option(
-    "--no-cache",
-    help="Do not read or write the cache.")]
-_DRY_RUN = Annotated[bool, typer.Option(
-    "--dry-run",
-    help="Print the split (per stratum and source groups) and what its certification part "
-         "can show, then stop before any image is analysed.")]
-_PROGRESS = Annotated[bool, typer.Option(
-    "--progress/--no-progress",
-    help="Progress bars on stderr.")]
-_QUIET = Annotated[bool, typer.Option(
-    "--quiet", "-q", hidden=True,
-    help="Same as --no-progress (kept for old scripts).")]
-
-
-def calibrate_command(
-    clean: _CLEAN = [],  # noqa: B006 - Typer reads the default; never mutated
-    positives: _POSITIVES = None,
-    out: _OUT = None,
-    report: _REPORT = None,
-    certify: _CERTIFY = None,
-    certify_fraction: _CERTIFY_FRACTION = 0.5,
-    split_seed: _SPLIT_SEED = 0,
-    target_far: _TARGET_FAR = None,
-    quick: _QUICK = False,
-    config: _CONFIG = None,
-    jobs: _JOBS = 0,
-    profiles: _PROFILES = "default",
-    no_cache: _NO_CACHE = False,
-    dry_run: _DRY_RUN = False,
-    progress: _PROGRESS = True,
-    quiet: _QUIET = False,
-) -> None:
-    """Sweep decision thresholds on a tuning part, certify the chosen setting on held-out images.
+CALIBRATE_HELP = """
+    Sweep decision thresholds on a tuning part, certify the chosen setting on held-out images.
 
     The clean images and the positives are split, seeded and stratified by folder and kind,
     keeping every variant of one source photo on one side (or --certify gives an independent
@@ -184,20 +108,64 @@ def calibrate_command(
         lishield-guard calibrate --clean clean/ --positives pos/ --out cal.toml --report r/
         lishield-guard calibrate --clean a/ --certify b/ --positives pos/ --out cal.toml --report r/
     """
+
+
+def calibrate_command(
+    clean: list[Path] = typer.Option(
+        [], "--clean", metavar="DIR",
+        help="Folder of clean images, no barcodes (repeatable). Required unless --quick."),
+    positives: Path | None = typer.Option(
+        None, "--positives", metavar="DIR",
+        help="Folder of barcode captures (synth dataset layout). Required unless --quick."),
+    out: Path | None = typer.Option(
+        None, "--out", metavar="FILE",
+        help="Calibrated config TOML to write. Default with --quick: REPORT/calibrated.toml."),
+    report: Path | None = typer.Option(
+        None, "--report", metavar="DIR",
+        help="Report folder: summary.md, plots, tables, evidence cache. Default with --quick: "
+             "./calibrate-quick."),
+    certify: Path | None = typer.Option(
+        None, "--certify", metavar="DIR",
+        help="Independent folder of clean images to certify the chosen setting on; every "
+             "--clean image then tunes (positives are still split)."),
+    certify_fraction: float = typer.Option(
+        0.5, "--certify-fraction",
+        help="Share of the clean images (unless --certify) and of the positives held out for "
+             "certification, in (0, 1)."),
+    split_seed: int = typer.Option(0, "--split-seed",
+                                   help="Seed of the tuning / certification split."),
+    target_far: float | None = typer.Option(
+        None, "--target-far",
+        help="Target image false-alarm rate, to be shown by the exact one-sided 95% bound on "
+             f"the certification part. Default 0.001 ({QUICK_TARGET_FAR:g} with --quick)."),
+    quick: bool = typer.Option(
+        False, "--quick",
+        help="Calibrate on small built-in sets (scikit-image photo variants, synthetic "
+             "look-alikes and captures) to see the whole report in a few minutes."),
+    config: Path | None = typer.Option(None, "--config", help="Base config (default: shipped)."),
+    jobs: int = typer.Option(0, "--jobs", "-j", help="Worker processes (default: all cores)."),
+    profiles: str = typer.Option(
+        "default", "--profiles",
+        help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
+             "one cheap measurement per image), cascade (the pattern search's thresholds; "
+             "seconds per striped image), paper (Algorithm 1)."),
+    no_cache: bool = typer.Option(False, "--no-cache", help="Do not read or write the cache."),
+    dry_run: bool = typer.Option(
+        False, "--dry-run",
+        help="Print the split (per stratum and source groups) and what its certification part "
+             "can show, then stop before any image is analysed."),
+    progress: bool = typer.Option(True, "--progress/--no-progress",
+                                  help="Progress bars on stderr."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", hidden=True,
+                               help="Same as --no-progress (kept for old scripts)."),
+) -> None:
+    """Sweep decision thresholds on a tuning part, certify the chosen setting on held-out images."""
     from lishield_guard import calibration
-    from lishield_guard.config import load_config
-    from lishield_guard.errors import LishieldError
 
     progress = progress and not quiet
     out, report, target_far = _check(clean, positives, out, report, certify, certify_fraction,
                                      target_far, quick, dry_run, jobs)
-    want = {p.strip() for p in profiles.split(",") if p.strip()}
-    if not want or want - set(calibration.PROFILES):
-        raise fail(f"--profiles takes default, cascade and/or paper, got {profiles!r}")
-    try:
-        base = load_config(config)
-    except LishieldError as exc:
-        raise fail(str(exc)) from None
+    want, base = _profiles_and_base(profiles, config)
     jobs = jobs or os.cpu_count() or 1
     if quick:
         report.mkdir(parents=True, exist_ok=True)
@@ -220,6 +188,21 @@ def calibrate_command(
         typer.echo(f"warning: target FAR {target_far:g} NOT MET on the certification part: "
                    f"{res.reason}. The config is written, marked NOT MET.", err=True)
         raise typer.Exit(int(ExitCode.ERROR))
+
+
+def _profiles_and_base(profiles: str, config: Path | None):
+    """The profiles to sweep and the base config (usage errors exit 2)."""
+    from lishield_guard.calibration import PROFILES
+    from lishield_guard.config import load_config
+    from lishield_guard.errors import LishieldError
+
+    want = {p.strip() for p in profiles.split(",") if p.strip()}
+    if not want or want - set(PROFILES):
+        raise fail(f"--profiles takes default, cascade and/or paper, got {profiles!r}")
+    try:
+        return want, load_config(config)
+    except LishieldError as exc:
+        raise fail(str(exc)) from None
 
 
 def _check(clean, positives, out, report, certify, certify_fraction, target_far, quick,
@@ -252,4 +235,4 @@ def _check(clean, positives, out, report, certify, certify_fraction, target_far,
 
 def register(app: typer.Typer) -> None:
     """Add the ``calibrate`` command to the main CLI app."""
-    app.command(name="calibrate")(calibrate_command)
+    app.command(name="calibrate", help=CALIBRATE_HELP)(calibrate_command)

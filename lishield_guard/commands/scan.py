@@ -6,7 +6,6 @@ import os
 import sys
 from collections import Counter
 from pathlib import Path
-from typing import Annotated
 
 import typer
 
@@ -66,73 +65,8 @@ def _summary(counts: Counter, codes: Counter, n_resumed: int, n_ignored: int,
     return text
 
 
-_PATHS = Annotated[list[str], typer.Argument(
-    metavar="PATH...",
-    help="Files, folders, .zip and .tar[.gz] archives.")]
-_OUTPUT = Annotated[str, typer.Option(
-    "--output", "-o", metavar="FILE",
-    help="Output file (JSON Lines or CSV), or - for stdout.")]
-_FMT = Annotated[str, typer.Option(
-    "--format",
-    help="jsonl or csv.")]
-_FROM_LIST = Annotated[str | None, typer.Option(
-    "--from-list", metavar="FILE",
-    help="Also scan the paths listed in FILE (- = stdin).")]
-_INCLUDE = Annotated[list[str], typer.Option(
-    "--include", metavar="GLOB",
-    help="Only scan matching images in folders/archives.")]
-_EXCLUDE = Annotated[list[str], typer.Option(
-    "--exclude", metavar="GLOB",
-    help="Skip matching files, folders and archives.")]
-_JOBS = Annotated[int, typer.Option(
-    "--jobs", "-j",
-    help="Worker processes (default: all cores).")]
-_RESUME = Annotated[bool, typer.Option(
-    "--resume",
-    help="Append to --output, skipping inputs already recorded.")]
-_DASK = Annotated[str | None, typer.Option(
-    "--dask", metavar="local",
-    help="Run on a Dask LocalCluster with --jobs workers.")]
-_SCHEDULER = Annotated[str | None, typer.Option(
-    "--scheduler", metavar="tcp://HOST:PORT",
-    help="Run on an existing Dask scheduler.")]
-_CONFIG = Annotated[Path | None, typer.Option(
-    "--config",
-    help="Config TOML (default: shipped).")]
-_PROFILE = Annotated[str | None, typer.Option(
-    "--profile",
-    help="Detector profile: default|cascade|paper.")]
-_PROGRESS = Annotated[bool | None, typer.Option(
-    "--progress/--no-progress",
-    help="Progress bar on stderr (default: when stderr is a terminal).")]
-_FAIL_ON_ERROR = Annotated[bool, typer.Option(
-    "--fail-on-error/--no-fail-on-error",
-    help="Exit 3 when, with nothing protected, records "
-         "hold input errors or undetermined results (default); "
-         "--no-fail-on-error exits 0 then.")]
-_QUIET = Annotated[bool, typer.Option(
-    "--quiet", "-q",
-    help="No progress bar or summary.")]
-
-
-def scan_command(
-    paths: _PATHS = None,
-    output: _OUTPUT = "-",
-    fmt: _FMT = "jsonl",
-    from_list: _FROM_LIST = None,
-    include: _INCLUDE = [],  # noqa: B006 - Typer reads the default; never mutated
-    exclude: _EXCLUDE = [],  # noqa: B006 - Typer reads the default; never mutated
-    jobs: _JOBS = 0,
-    resume: _RESUME = False,
-    dask: _DASK = None,
-    scheduler: _SCHEDULER = None,
-    config: _CONFIG = None,
-    profile: _PROFILE = None,
-    progress: _PROGRESS = None,
-    fail_on_error: _FAIL_ON_ERROR = True,
-    quiet: _QUIET = False,
-) -> None:
-    """Scan many images; one record per input (JSON Lines or CSV), written as results arrive.
+SCAN_HELP = """
+    Scan many images; one record per input (JSON Lines or CSV), written as results arrive.
 
     Each record has a status: protected, clean, undetermined (the detector could not look,
     e.g. an image under 64 lines on every axis) or error. Folders and archives are searched
@@ -155,6 +89,40 @@ def scan_command(
         lishield-guard scan archive.tar.gz -o out.jsonl --resume --no-progress
         lishield-guard scan --from-list paths.txt --include '*.jpg' -o out.csv --format csv
     """
+
+
+def scan_command(
+    paths: list[str] = typer.Argument(None, metavar="PATH...",
+                                      help="Files, folders, .zip and .tar[.gz] archives."),
+    output: str = typer.Option("-", "--output", "-o", metavar="FILE",
+                               help="Output file (JSON Lines or CSV), or - for stdout."),
+    fmt: str = typer.Option("jsonl", "--format", help="jsonl or csv."),
+    from_list: str | None = typer.Option(None, "--from-list", metavar="FILE",
+                                         help="Also scan the paths listed in FILE (- = stdin)."),
+    include: list[str] = typer.Option([], "--include", metavar="GLOB",
+                                      help="Only scan matching images in folders/archives."),
+    exclude: list[str] = typer.Option([], "--exclude", metavar="GLOB",
+                                      help="Skip matching files, folders and archives."),
+    jobs: int = typer.Option(0, "--jobs", "-j", help="Worker processes (default: all cores)."),
+    resume: bool = typer.Option(False, "--resume",
+                                help="Append to --output, skipping inputs already recorded."),
+    dask: str | None = typer.Option(None, "--dask", metavar="local",
+                                    help="Run on a Dask LocalCluster with --jobs workers."),
+    scheduler: str | None = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                         help="Run on an existing Dask scheduler."),
+    config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
+    profile: str | None = typer.Option(None, "--profile",
+                                       help="Detector profile: default|cascade|paper."),
+    progress: bool | None = typer.Option(None, "--progress/--no-progress",
+                                         help="Progress bar on stderr (default: when stderr "
+                                         "is a terminal)."),
+    fail_on_error: bool = typer.Option(True, "--fail-on-error/--no-fail-on-error",
+                                       help="Exit 3 when, with nothing protected, records "
+                                       "hold input errors or undetermined results (default); "
+                                       "--no-fail-on-error exits 0 then."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
+) -> None:
+    """Scan many images; one record per input (JSON Lines or CSV), written as results arrive."""
     from lishield_guard import scan
     from lishield_guard.commands.detect import resolve_config
 
@@ -211,4 +179,4 @@ def _check(fmt: str, dask: str | None, scheduler: str | None, resume: bool, outp
 
 def register(app: typer.Typer) -> None:
     """Add the ``scan`` command to the main CLI app."""
-    app.command(name="scan")(scan_command)
+    app.command(name="scan", help=SCAN_HELP)(scan_command)
