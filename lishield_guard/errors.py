@@ -33,6 +33,7 @@ __all__ = [
     "EXIT_USAGE",
     "ConfigError",
     "CorruptImageError",
+    "CorruptVideoError",
     "EmptyImageError",
     "ErrorCodeInfo",
     "FirmwareError",
@@ -43,6 +44,7 @@ __all__ = [
     "PayloadTooLargeError",
     "SpecError",
     "UnsupportedImageError",
+    "VideoTooLongError",
     "error_code",
     "error_code_table_markdown",
     "exit_status_table_markdown",
@@ -122,6 +124,19 @@ class PayloadTooLargeError(LishieldError):
     code = "payload_too_large"
 
 
+class CorruptVideoError(ImageDecodeError):
+    """The bytes are a known video container, but it is cut short, broken or cannot be
+    decoded where it says it has frames."""
+
+    code = "undecodable_video"
+
+
+class VideoTooLongError(LishieldError):
+    """The video is longer (seconds or frames) than the configured cap."""
+
+    code = "video_too_long"
+
+
 class FirmwareError(LishieldError, ValueError):
     """A firmware sequence cannot be compiled within tolerance, or a file cannot be read back."""
 
@@ -185,6 +200,9 @@ ERROR_CODES: tuple[ErrorCodeInfo, ...] = (
     _e("invalid_image", (422,), _IN, "core", "an array of the wrong shape, empty, or not finite"),
     _e("image_too_large", (413,), _IN, "core", "more pixels than the cap (decompression bomb)"),
     _e("payload_too_large", (413,), _IN, "core", "more bytes than the cap"),
+    _e("undecodable_video", (422,), _IN, "core",
+       "a known video container, but truncated, broken or not decodable"),
+    _e("video_too_long", (413,), _IN, "core", "a video longer (seconds or frames) than the cap"),
     _e("invalid_config", (), _USE, "core", "a bad config file, detector setting or policy"),
     _e("invalid_spec", (), _USE, "core", "a barcode spec breaks a validation rule"),
     _e("firmware_error", (), _USE, "core", "a sequence cannot be compiled or read back"),

@@ -1,0 +1,159 @@
+"""Calibrate and certify the video threshold on whole clean clips (one clip, one sample).
+
+Every clip is screened exhaustively once (`clip_scores`: every planned frame's logit and the
+run sizes); the stopping rule (`screen.combine_frames`) is then replayed at any threshold, so
+the calibrated rate is the rate of the screen as it runs, early stops and repeated looks
+included. Clean clips are split by a hash of their name into a tuning part, which sets the
+threshold, and a certification part, which bounds the per-clip false-alarm rate (exact
+binomial bound; frames of a clip are never counted as separate samples). A second,
+dependence-free bound comes from single clean frames by Markov's inequality (`markov_far`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from lishield_guard.config import AppConfig
+from lishield_guard.stats import upper_bound
+from lishield_guard.video.decode import open_video
+from lishield_guard.video.screen import COMBINE_LAMBDA, clip_logit, screen_video
+from lishield_guard.video.settings import VideoConfig
+
+__all__ = ["ClipScores", "VideoCalibration", "calibrate_video", "clip_scores",
+           "flag_threshold", "markov_far"]
+
+MIN_TAIL_CLIPS = 20  # fewer clean tuning clips than this cannot set a threshold
+
+
+@dataclass(frozen=True)
+class ClipScores:
+    """One clip's exhaustive screen: frame logits in screening order and frames per run."""
+
+    name: str
+    logits: tuple[float, ...]
+    run_sizes: tuple[int, ...]
+    first_logit: float  # the first screened frame alone (what a photo screen of it sees)
+    label: int | None = None
+    error: str | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready."""
+        return asdict(self)
+
+
+def clip_scores(source, name: str, config: AppConfig, vcfg: VideoConfig,
+                label: int | None = None) -> ClipScores:
+    """Screen every planned frame of one clip (no early stop); an input error is recorded in
+    ``error``, never raised."""
+    from lishield_guard.errors import LishieldError
+
+    try:
+        with open_video(source, vcfg.limits) as reader:
+            rec = screen_video(reader, config, vcfg, exhaustive=True)
+    except LishieldError as exc:
+        return ClipScores(name, (), (), -math.inf, label, f"{exc.code}: {exc}")
+    runs = 1 + max((f.run for f in rec.frames), default=-1)
+    sizes = tuple(sum(1 for f in rec.frames if f.run == r and f.undetermined is None)
+                  for r in range(runs))
+    first = next((f.logit for f in rec.frames if f.undetermined is None), -math.inf)
+    return ClipScores(name, tuple(float(x) for x in rec.logits), sizes, float(first), label)
+
+
+def flag_threshold(c: ClipScores, vcfg: VideoConfig) -> float:
+    """The lowest threshold at which the screen flags clip ``c`` (the clear rule fixed at
+    ``vcfg.clear_logit``): the largest clip logit of the checkpoints it reaches before it is
+    cleared; -inf when it is cleared before ``min_frames`` determined frames or has none."""
+    x = np.asarray(c.logits, np.float64)
+    best, n = -math.inf, 0
+    for size in c.run_sizes:
+        n += size
+        if n < vcfg.min_frames:
+            continue
+        s = clip_logit(x[:n])
+        best = max(best, s)
+        if s < vcfg.clear_logit:
+            break
+    return best
+
+
+def markov_far(frame_logits, threshold_logit: float, n_looks: int,
+               lam: float = COMBINE_LAMBDA) -> float:
+    """A per-clip false-alarm bound that holds whatever the dependence between frames:
+    P(log-mean-exp >= t) <= E[exp(lam L)] exp(-lam t) per look (Markov's inequality on the mean
+    of exp(lam L), whose expectation is that of one frame), times the number of looks. The
+    expectation is estimated from clean frames (``frame_logits``)."""
+    x = np.asarray(frame_logits, np.float64)
+    x = x[np.isfinite(x)]
+    if not len(x):
+        return 1.0
+    m = float(x.max())
+    e = math.exp(lam * (m - threshold_logit)) * float(np.mean(np.exp(lam * (x - m))))
+    return min(1.0, n_looks * e)
+
+
+def _in_cert(name: str, fraction: float, seed: int) -> bool:
+    h = hashlib.sha256(f"{seed}:{name}".encode()).digest()
+    return int.from_bytes(h[:8], "big") / 2**64 < fraction
+
+
+@dataclass(frozen=True)
+class VideoCalibration:
+    """The calibrated video threshold and its certification."""
+
+    threshold_logit: float
+    clear_logit: float
+    target_far: float
+    n_tune: int
+    n_cert: int
+    flagged_tune: int
+    flagged_cert: int
+    far_bound: float
+    met: bool
+    markov_bound: float
+    n_errors: int
+    tpr: float | None = None
+    n_pos: int = 0
+
+    def to_dict(self) -> dict:
+        """JSON-ready."""
+        return asdict(self)
+
+
+def calibrate_video(clean: list[ClipScores], vcfg: VideoConfig, *, target_far: float = 0.005,
+                    cert_fraction: float = 0.5, seed: int = 0, nudge: float = 1e-3,
+                    positives: list[ClipScores] | None = None) -> VideoCalibration:
+    """Set ``threshold_logit`` just above every clean tuning clip's flag threshold and bound
+    the per-clip false-alarm rate on the certification clips.
+
+    Raises
+    ------
+    ValueError
+        Fewer than `MIN_TAIL_CLIPS` clean tuning clips.
+    """
+    ok = [c for c in clean if c.error is None]
+    cert = [c for c in ok if _in_cert(c.name, cert_fraction, seed)]
+    tune = [c for c in ok if not _in_cert(c.name, cert_fraction, seed)]
+    if len(tune) < MIN_TAIL_CLIPS:
+        raise ValueError(f"need at least {MIN_TAIL_CLIPS} clean tuning clips, got {len(tune)}")
+    tune_thr = np.array([flag_threshold(c, vcfg) for c in tune])
+    thr = max(float(np.max(tune_thr)) + nudge, vcfg.clear_logit)
+    cert_thr = np.array([flag_threshold(c, vcfg) for c in cert])
+    k = int(np.sum(cert_thr >= thr))
+    bound = upper_bound(k, len(cert)) if cert else 1.0
+    looks = max((len(c.run_sizes) for c in ok), default=1)
+    markov = markov_far([x for c in tune for x in c.logits], thr, looks)
+    tpr, n_pos = None, 0
+    if positives:
+        pos = [c for c in positives if c.error is None]
+        n_pos = len(pos)
+        tpr = float(np.mean([flag_threshold(c, vcfg) >= thr for c in pos])) if pos else None
+    return VideoCalibration(threshold_logit=round(thr, 4), clear_logit=vcfg.clear_logit,
+                            target_far=target_far, n_tune=len(tune), n_cert=len(cert),
+                            flagged_tune=int(np.sum(tune_thr >= thr)), flagged_cert=k,
+                            far_bound=bound, met=bool(bound <= target_far),
+                            markov_bound=markov, n_errors=len(clean) - len(ok), tpr=tpr,
+                            n_pos=n_pos)

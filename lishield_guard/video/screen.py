@@ -1,0 +1,361 @@
+"""Screen a video: score frames with the photo detector's learned decision and add the evidence up.
+
+A clip is screened in *runs* of `VideoConfig.first_frames` frames (`plan_runs`): keyframes
+first, spread over the clip (van der Corput order), so a scene that changes, a camera that
+pans or a light that comes and goes is seen; then the frames right after them, which see the
+light a frame interval later, at another phase of its cycle. Each frame gets its image logit
+L (`decision.measure`: the largest window logit). After each run the frames so far are
+combined into one clip logit
+
+    S = (1 / lam) * log(mean_k exp(lam * L_k))        (log-mean-exp, `COMBINE_LAMBDA`)
+
+which lies between the mean (evidence that adds up over frames too weak one by one) and the
+maximum (one clear frame). The clip is protected as soon as S reaches
+`VideoConfig.threshold_logit`, clean as soon as it is below `clear_logit` after a run (more
+frames would rarely change the verdict), and otherwise screened further until
+`max_frames`. Frames of one clip are not independent (one scene, one light): the threshold is
+set and certified on whole clean clips, one clip one sample (`calibrate_video`), and the
+stopping rule is part of what is calibrated, so neither the dependence nor the repeated looks
+enter the false-alarm rate unaccounted. Markov's inequality also bounds the rate for any
+dependence: P(S >= t) <= E[exp(lam * L)] * exp(-lam * t) over single clean frames.
+
+The plan depends only on the container's header (duration, frame rate, keyframes), so
+calibration and detection screen the same frames of a clip.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lishield_guard.config import AppConfig
+from lishield_guard.detector.decision import DecisionRecord, decision_model, measure, window_label
+from lishield_guard.detector.pipeline import learned_evidence
+from lishield_guard.verdict import Verdict
+from lishield_guard.video.decode import VideoInfo, VideoReader, open_video
+from lishield_guard.video.settings import VideoConfig
+
+__all__ = ["COMBINE_LAMBDA", "FrameScore", "VideoRecord", "clip_logit", "combine_frames",
+           "plan_runs", "replay", "screen_video", "video_verdict"]
+
+COMBINE_LAMBDA = 1.0  # log-mean-exp temperature over frame logits (dev set: see docs/video.md)
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    """One screened frame: where it is and its image logit."""
+
+    index: int
+    time_s: float
+    logit: float
+    where: str
+    keyframe: bool
+    run: int
+    undetermined: str | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready."""
+        return {"index": self.index, "time_s": round(self.time_s, 3),
+                "logit": None if self.undetermined else round(self.logit, 4),
+                "where": self.where, "keyframe": self.keyframe, "run": self.run,
+                "undetermined": self.undetermined}
+
+
+@dataclass(frozen=True)
+class VideoRecord:
+    """Every measurement a clip's verdict is decided on.
+
+    Attributes
+    ----------
+    info : VideoInfo
+        The container's header.
+    frames : tuple of FrameScore
+        Screened frames in the order they were screened.
+    stop : str
+        Why screening stopped: ``"flagged"``, ``"cleared"``, ``"max_frames"``, ``"end"``
+        (the clip had no more frames to plan) or ``"decode_budget"``.
+    best : DecisionRecord or None
+        The record of the frame with the largest logit (for the explanation).
+    decoded_frames : int
+        Frames the decoder produced (screened or passed over).
+    """
+
+    info: VideoInfo
+    frames: tuple[FrameScore, ...]
+    stop: str
+    best: DecisionRecord | None
+    decoded_frames: int
+    row_scale: int = 1
+    checkpoints: tuple[float, ...] = field(default=())
+
+    @property
+    def logits(self) -> np.ndarray:
+        """Logits of the determined frames, in screening order."""
+        return np.array([f.logit for f in self.frames if f.undetermined is None], np.float64)
+
+
+def clip_logit(logits, lam: float = COMBINE_LAMBDA) -> float:
+    """The clip logit of frame logits: log-mean-exp with temperature ``lam`` (-inf when
+    there are none)."""
+    x = np.asarray(logits, np.float64)
+    if x.size == 0:
+        return -math.inf
+    m = float(x.max())
+    return m + float(np.log(np.mean(np.exp(lam * (x - m))))) / lam
+
+
+def combine_frames(logits, run_sizes, threshold_logit: float, clear_logit: float,
+                   min_frames: int = 1, lam: float = COMBINE_LAMBDA) -> tuple[str, int, float]:
+    """The stopping rule on the frame logits of successive runs, written once (screening and
+    calibration replay it).
+
+    Parameters
+    ----------
+    logits : sequence of float
+        Determined frame logits in screening order.
+    run_sizes : sequence of int
+        Determined frames per run, in order (their sum is ``len(logits)``).
+    threshold_logit, clear_logit : float
+        Flag when the clip logit reaches the first; clear when it is below the second.
+
+    Returns
+    -------
+    (stop, n_used, clip_logit)
+        ``stop`` is ``"flagged"``, ``"cleared"`` or ``"open"`` (every run used, neither rule
+        fired); ``n_used`` the frames the verdict rests on.
+    """
+    x = np.asarray(logits, np.float64)
+    n = 0
+    s = -math.inf
+    for size in run_sizes:
+        n += int(size)
+        if n < min_frames:
+            continue
+        s = clip_logit(x[:n], lam)
+        if s >= threshold_logit:
+            return "flagged", n, s
+        if s < clear_logit:
+            return "cleared", n, s
+    return "open", n, s
+
+
+def replay(logits, run_sizes, vcfg: VideoConfig, threshold_logit: float | None = None
+           ) -> bool:
+    """Whether a clip with these frame logits is flagged at ``threshold_logit`` (default the
+    configured one), with the screen's stopping rule."""
+    thr = vcfg.threshold_logit if threshold_logit is None else threshold_logit
+    stop, _, _ = combine_frames(logits, run_sizes, thr, min(vcfg.clear_logit, thr),
+                                vcfg.min_frames)
+    return stop == "flagged"
+
+
+def _van_der_corput(n: int) -> list[int]:
+    """0..n-1 in an order that keeps every prefix spread out (bit-reversed fractions)."""
+    def radical(i: int) -> float:
+        out, f = 0.0, 0.5
+        while i:
+            out += f * (i & 1)
+            i >>= 1
+            f /= 2
+        return out
+    return sorted(range(n), key=lambda i: (radical(i), i))
+
+
+def plan_runs(info: VideoInfo, vcfg: VideoConfig) -> list[list[float]]:
+    """The frame times of every run, in screening order (at most ``max_frames`` frames).
+
+    Candidates, in order: every keyframe of the container's index, visited spread out (a
+    keyframe is intra coded: at low bitrates the frames after it copy most of it, stripes
+    included, so keyframes carry the most independent looks at the light); then the frame
+    after each keyframe, then the second after, and so on (a frame interval later the light
+    is at another phase of its cycle). A clip that lists no keyframes starts runs at
+    ``frame_stride_s`` multiples spread over it. Runs are `first_frames` consecutive
+    candidates, each run decoded in time order.
+    """
+    dt = 1.0 / info.frame_rate_hz
+    end = info.duration_s - 0.5 * dt
+    keys = sorted(info.keyframes_s)
+    if keys and keys[0] < 0:  # index times are decode times: the first keyframe shows at 0
+        keys = [k - keys[0] for k in keys]
+    keys = [k for k in keys if k <= end]
+    if not keys:
+        n = max(1, min(vcfg.max_frames, int(end / vcfg.frame_stride_s) + 1))
+        keys = [end * i / n for i in range(n)]
+    order = [keys[i] for i in _van_der_corput(len(keys))]
+    cand: list[float] = []
+    j = 0
+    while len(cand) < vcfg.max_frames and j * dt <= end:
+        cand += [k + j * dt for k in order if k + j * dt <= end]
+        j += 1
+    cand = cand[:vcfg.max_frames]
+    return [sorted(cand[i:i + vcfg.first_frames])
+            for i in range(0, len(cand), vcfg.first_frames)]
+
+
+def _measure_run(reader: VideoReader, times, run: int, config: AppConfig, vcfg: VideoConfig,
+                 timings: dict) -> list[tuple[FrameScore, DecisionRecord | None]]:
+    det = config.detector
+    out = []
+    t0 = time.perf_counter()
+    frames = list(reader.frames(times, max_rows=vcfg.max_rows))
+    timings["decode"] = timings.get("decode", 0.0) + (time.perf_counter() - t0) * 1e3
+    for fr in frames:
+        t0 = time.perf_counter()
+        rec = measure(fr.rgb, det)
+        timings["measure"] = timings.get("measure", 0.0) + (time.perf_counter() - t0) * 1e3
+        if rec.undetermined is not None:
+            out.append((FrameScore(fr.index, fr.time_s, -math.inf, "", fr.keyframe, run,
+                                   rec.undetermined), None))
+        else:
+            out.append((FrameScore(fr.index, fr.time_s, rec.logit,
+                                   window_label(rec.spectra, rec.best), fr.keyframe, run),
+                        rec))
+    return out
+
+
+def screen_video(reader: VideoReader, config: AppConfig, vcfg: VideoConfig,
+                 timings: dict | None = None, *, exhaustive: bool = False) -> VideoRecord:
+    """Screen an opened clip run by run until the verdict is certain (see the module
+    docstring); ``exhaustive`` screens every planned frame (calibration replays the stopping
+    rule on them)."""
+    timings = {} if timings is None else timings
+    frames: list[FrameScore] = []
+    sizes: list[int] = []
+    best: DecisionRecord | None = None
+    stop = "end"
+    plan = plan_runs(reader.info, vcfg)
+    checkpoints = []
+    for r, times in enumerate(plan):
+        got = _measure_run(reader, times, r, config, vcfg, timings)
+        for fs, rec in got:
+            frames.append(fs)
+            if rec is not None and (best is None or rec.logit > best.logit):
+                best = rec
+        sizes.append(sum(1 for fs, _ in got if fs.undetermined is None))
+        if reader.budget_hit:
+            stop = "decode_budget"
+            break
+        logits = [f.logit for f in frames if f.undetermined is None]
+        decision, _, s = combine_frames(logits, sizes, vcfg.threshold_logit, vcfg.clear_logit,
+                                        vcfg.min_frames)
+        checkpoints.append(s)
+        if decision != "open" and not exhaustive:
+            stop = decision
+            break
+        stop = "max_frames" if sum(len(t) for t in plan[:r + 1]) >= vcfg.max_frames else "end"
+    return VideoRecord(reader.info, tuple(frames), stop, best, reader.decoded_frames,
+                       checkpoints=tuple(checkpoints))
+
+
+def _scope(config: AppConfig) -> tuple[str | None, list[str]]:
+    """Why the learned decision cannot screen for the configured specs (None when it can)
+    and notes on specs it does not cover."""
+    specs = [s for p in config.policies for s in p.specs]
+    model = decision_model(config.detector)
+    unknown = [s.name for s in specs if not model.knows(s)]
+    if not specs:
+        return "no policy configured: nothing to look for", []
+    if len(unknown) == len(specs):
+        return (f"the decision model was not trained on any configured spec "
+                f"({', '.join(unknown)}): retrain (make train)"), []
+    return None, [f"specs {', '.join(unknown)}: not in the decision model's training (a clean "
+                  f"verdict does not cover them)"] if unknown else []
+
+
+def video_verdict(rec: VideoRecord, config: AppConfig, vcfg: VideoConfig,
+                  timings: dict, skipped: list[str]) -> Verdict:
+    """The clip's Verdict from its record: status by the stopping rule, the deciding frames,
+    per-frame scores and, when flagged, the spec that explains the best frame."""
+    det = config.detector
+    logits = rec.logits
+    sizes = [sum(1 for f in rec.frames if f.run == r and f.undetermined is None)
+             for r in range(1 + max((f.run for f in rec.frames), default=-1))]
+    decision, n_used, s = combine_frames(logits, sizes, vcfg.threshold_logit,
+                                         vcfg.clear_logit, vcfg.min_frames)
+    n_undet = sum(1 for f in rec.frames if f.undetermined is not None)
+    if n_undet:
+        skipped.append(f"{n_undet} screened frames undetermined (e.g. "
+                       f"{next(f.undetermined for f in rec.frames if f.undetermined)})")
+    if rec.row_scale > 1:
+        skipped.append(f"full resolution: frames scaled to 1/{rec.row_scale} (stripes need "
+                       f"rows, not pixels)")
+    video = {"info": rec.info.to_dict(), "stop": rec.stop, "frames_screened": len(rec.frames),
+             "frames_decoded": rec.decoded_frames, "clip_logit": round(s, 4),
+             "threshold_logit": vcfg.threshold_logit, "clear_logit": vcfg.clear_logit,
+             "combine": f"log-mean-exp, lambda {COMBINE_LAMBDA:g}",
+             "checkpoints": [round(c, 4) for c in rec.checkpoints],
+             "frames": [f.to_dict() for f in rec.frames]}
+    if len(logits) < vcfg.min_frames or rec.best is None:
+        why = (f"only {len(logits)} frames could be screened (need {vcfg.min_frames}; "
+               f"stopped: {rec.stop})")
+        return Verdict(False, None, 0, 1, evidence={"reason": why, "video": video},
+                       skipped=tuple(skipped), timings_ms=timings, profile="default",
+                       undetermined=why)
+    protected = decision == "flagged"
+    specs = [(p.id, sp) for p in config.policies for sp in p.specs]
+    t0 = time.perf_counter()
+    best_ev = learned_evidence(rec.best, specs, det)
+    timings["explain"] = (time.perf_counter() - t0) * 1e3
+    order = sorted((f for f in rec.frames if f.undetermined is None), key=lambda f: -f.logit)
+    deciding = [f.index for f in order[:3]]
+    if protected:
+        reason = (f"barcode in video: clip logit {s:.2f} >= threshold "
+                  f"{vcfg.threshold_logit:.2f} over {n_used} frames (deciding frames "
+                  f"{', '.join(map(str, deciding))}); best frame: {best_ev['reason']}")
+    else:
+        reason = (f"clean video: clip logit {s:.2f} < threshold {vcfg.threshold_logit:.2f} "
+                  f"over {len(logits)} frames (stopped: {rec.stop}; highest frame logit "
+                  f"{order[0].logit:.2f} at frame {order[0].index})")
+    evidence = dict(best_ev, reason=reason, stage="video", logit=round(s, 4),
+                    threshold_logit=vcfg.threshold_logit, deciding_frames=deciding,
+                    best_frame=order[0].index, video=video)
+    return Verdict(protected=protected, policy=best_ev["policy"] if protected else None,
+                   matches=int(protected), required=1, evidence=evidence,
+                   skipped=tuple(skipped), timings_ms=timings, profile="default",
+                   score=float(1.0 / (1.0 + math.exp(-min(max(s, -60.0), 60.0)))))
+
+
+def detect_video(source, config: AppConfig, vcfg: VideoConfig | None = None) -> Verdict:
+    """Decide whether a video carries a barcode of a configured policy.
+
+    Parameters
+    ----------
+    source : bytes, str or Path
+        Encoded video bytes or a path (MP4/MOV/WebM/MKV).
+    config : AppConfig
+        Detector settings and policies (the learned decision screens every frame).
+    vcfg : VideoConfig, optional
+        Limits and the screening plan; default ``config.video`` or `VideoConfig()`.
+
+    Returns
+    -------
+    Verdict
+        ``evidence["video"]`` holds the per-frame scores and why screening stopped.
+
+    Raises
+    ------
+    EmptyImageError, PayloadTooLargeError, UnsupportedImageError, CorruptVideoError,
+    VideoTooLongError, ImageTooLargeError
+        When the input cannot be screened as a video.
+    """
+    vcfg = vcfg or getattr(config, "video", None) or VideoConfig()
+    timings: dict = {}
+    t0 = time.perf_counter()
+    reader = open_video(source, vcfg.limits)
+    timings["open"] = (time.perf_counter() - t0) * 1e3
+    with reader:
+        why, skipped = _scope(config)
+        if config.detector.profile != "default":
+            skipped.append(f"profile {config.detector.profile}: videos are screened with the "
+                           f"default profile's learned decision")
+        if why is not None:
+            return Verdict(False, None, 0, 1, evidence={"reason": why}, skipped=tuple(skipped),
+                           timings_ms=timings, profile="default", undetermined=why)
+        rec = screen_video(reader, config, vcfg, timings)
+        rec = VideoRecord(rec.info, rec.frames, rec.stop, rec.best, rec.decoded_frames,
+                          reader.row_scale(vcfg.max_rows),
+                          rec.checkpoints)
+    return video_verdict(rec, config, vcfg, timings, skipped)
