@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lishield_guard.batch import list_files, run_pool, worker_state
+from lishield_guard.batch import IMAGE, list_files, run_pool, worker_state
 from lishield_guard.config import AppConfig
 from lishield_guard.errors import LishieldError
 from lishield_guard.stats import pareto_front, percentile, rate_with_ci
@@ -135,7 +135,8 @@ def clean_items(folder: Path) -> list[BenchItem]:
     """Every image under a folder of clean photos (the types `scan` reads), all labelled 0,
     sorted by path."""
     folder = Path(folder)
-    return [BenchItem(p, 0, f"clean:{folder.name}", "clean") for p in list_files(folder)]
+    return [BenchItem(p, 0, f"clean:{folder.name}", "clean")
+            for p in list_files(folder, kinds=(IMAGE,))]
 
 
 def pillow_rgb_floor(path: Path) -> np.ndarray:

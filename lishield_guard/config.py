@@ -18,6 +18,7 @@ import numpy as np
 
 from lishield_guard.errors import ConfigError, SpecError
 from lishield_guard.spec import PRESETS, BarcodeSpec
+from lishield_guard.video.settings import VideoConfig, VideoLimits
 
 __all__ = [
     "AppConfig",
@@ -591,6 +592,7 @@ class AppConfig:
     limits: Limits = field(default_factory=Limits)
     policies: tuple[Policy, ...] = ()
     source: str = field(default="<built-in>", compare=False)
+    video: VideoConfig = field(default_factory=VideoConfig)
     header: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
@@ -624,7 +626,7 @@ def _build(table: dict, *, source: str, header: str = "") -> AppConfig:
 
 
 def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
-    known = {"detector", "limits", "policies", "calibration"}
+    known = {"detector", "limits", "policies", "calibration", "video"}
     unknown = set(table) - known
     if unknown:
         raise ConfigError(f"{source}: unknown top-level keys {sorted(unknown)!r}")
@@ -643,10 +645,25 @@ def _build_checked(table: dict, *, source: str, header: str = "") -> AppConfig:
         policies.append(Policy(id=str(p["id"]), specs=tuple(specs),
                                description=str(p.get("description", ""))))
     try:
-        return AppConfig(detector=det, limits=Limits(**lim),
-                         policies=tuple(policies), source=source, header=header)
+        return AppConfig(detector=det, limits=Limits(**lim), policies=tuple(policies),
+                         source=source, header=header,
+                         video=_video_from_table(table.get("video", {}), source))
     except TypeError as exc:  # wrong value types reach dataclass construction
         raise ConfigError(f"{source}: {exc}") from exc
+
+
+def _video_from_table(video: Any, source: str) -> VideoConfig:
+    """The VideoConfig of a ``[video]`` table (with its ``[video.limits]``)."""
+    if not isinstance(video, dict):
+        raise ConfigError(f"{source}: [video] must be a table, got {video!r}")
+    lim = video.get("limits", {})
+    names = {f.name for f in dataclasses.fields(VideoConfig)}
+    bad = sorted(set(video) - names) + [f"limits.{k}" for k in sorted(
+        set(lim) - {f.name for f in dataclasses.fields(VideoLimits)})]
+    if bad:
+        raise ConfigError(f"{source}: unknown [video] keys {bad!r}")
+    rest = {k: v for k, v in video.items() if k != "limits"}
+    return VideoConfig(limits=VideoLimits(**lim), **rest)
 
 
 def _detector_from_table(det: Any, source: str) -> DetectorConfig:
@@ -701,7 +718,8 @@ def _read_table(path: str | Path | None) -> tuple[dict, str, str]:
 def merge_tables(base: dict, override: dict) -> dict:
     """A user's config table laid over the shipped one.
 
-    ``[limits]`` and each ``[detector.<stage>]`` table are merged key by key (keys left out
+    ``[limits]``, ``[video]`` (with ``[video.limits]``) and each ``[detector.<stage>]`` table
+    are merged key by key (keys left out
     keep the shipped, calibrated values, never the dataclass defaults; a stage set to
     ``false`` is off; flat ``[detector]`` keys of earlier versions are read as their groups'),
     and a ``policies`` key, when present,
@@ -718,6 +736,9 @@ def merge_tables(base: dict, override: dict) -> dict:
     for key, value in override.items():
         if key == "limits" and isinstance(value, dict) and isinstance(out.get(key), dict):
             out[key] = {**out[key], **value}
+        elif key == "video" and isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = {**out[key], **value, "limits": {**out[key].get("limits", {}),
+                                                         **value.get("limits", {})}}
         elif key == "detector" and isinstance(value, dict) \
                 and isinstance(out.get(key), dict):
             if _is_flat(value):
@@ -786,6 +807,7 @@ def dump_config(cfg: AppConfig, *, header: str = "") -> str:
     table = {
         "detector": det,
         "limits": dataclasses.asdict(cfg.limits),
+        "video": dataclasses.asdict(cfg.video),
         "policies": [],
     }
     for p in cfg.policies:

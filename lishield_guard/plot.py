@@ -88,6 +88,10 @@ def figure_caption(verdict) -> str:
     'Left'
     """
     status = _status(verdict)
+    if "video" in (verdict.evidence or {}):
+        from lishield_guard.video.figure import video_caption
+
+        return video_caption(verdict)
     if status == "undetermined":
         return ("Left: the image as the detector decoded it. Right: why it could not look at "
                 "it; the image is not clean, and nothing was fitted.")
@@ -383,6 +387,12 @@ def verdict_figure(source, verdict, config):
     """
     from matplotlib.figure import Figure
 
+    from lishield_guard.video import is_video
+
+    if is_video(source):  # a clip: the deciding frame and the per-frame scores
+        from lishield_guard.video.figure import video_figure
+
+        return video_figure(source, verdict, config)
     if _status(verdict) == "undetermined":
         return _undetermined_figure(source, verdict, config)
     if (verdict.evidence or {}).get("stage") == "learned":  # the default profile

@@ -91,7 +91,8 @@ CODE_WORKER_CRASHED = "worker_crashed"
 # --------------------------------------------------------------------------- detection
 
 def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
-    """Run `lishield_guard.detect` on one input and return the verdict fields of a record.
+    """Screen one input (an image with `lishield_guard.detect`, a video with
+    `lishield_guard.video.detect_video`) and return the verdict fields of a record.
 
     Never raises for a bad image: every exception becomes ``error`` plus a stable ``code``
     (the LishieldError code, or ``"internal_error"`` for a bug).
@@ -104,13 +105,13 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
         verdict's reason in words), ``skipped`` (work not done, and why) and ``elapsed_ms``
         (wall time of the detection, in milliseconds).
     """
-    from lishield_guard.detector import detect
+    from lishield_guard.video import detect_media
 
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            v = detect(source, config)
+            v = detect_media(source, config)
         reason = v.evidence.get("reason") if isinstance(v.evidence, dict) else None
         out: dict[str, Any] = {"status": v.status, "protected": v.protected_or_none,
                                "policy": v.policy,

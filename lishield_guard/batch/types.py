@@ -17,8 +17,12 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "KINDS",
     "SNIFF_BYTES",
+    "VIDEO",
+    "VIDEO_MEDIA_TYPES",
+    "VIDEO_SUFFIXES",
     "MediaKind",
     "is_image_bytes",
+    "is_video_bytes",
     "kind_of_bytes",
     "kind_of_name",
 ]
@@ -40,6 +44,24 @@ def is_image_bytes(head: bytes) -> bool:
             or (head[4:8] == b"ftyp" and head[8:12] in (b"heic", b"heix", b"heim", b"heis",
                                                          b"hevc", b"hevx", b"mif1", b"msf1",
                                                          b"avif")))
+
+
+# ISO-BMFF brands of still images (HEIF, AVIF): an ftyp box with one of these is a photo
+_IMAGE_BRANDS = (b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b"msf1",
+                 b"avif", b"avis")
+
+
+def is_video_bytes(head: bytes) -> bool:
+    """True when leading bytes start an MP4/MOV (an ``ftyp`` box of a brand other than a
+    still image's) or a Matroska/WebM container.
+
+    Examples
+    --------
+    >>> is_video_bytes(b"\\0\\0\\0\\x20ftypisom"), is_video_bytes(b"\\0\\0\\0\\x18ftypheic")
+    (True, False)
+    """
+    return ((head[4:8] == b"ftyp" and head[8:12] not in _IMAGE_BRANDS)
+            or head[:4] == b"\x1a\x45\xdf\xa3")
 
 
 @dataclass(frozen=True)
@@ -76,13 +98,24 @@ IMAGE = MediaKind(
                  "image/heic", "image/heif"),
     sniff=is_image_bytes)
 
-#: Every kind batch work reads, in the order they are tried.
-KINDS: tuple[MediaKind, ...] = (IMAGE,)
+VIDEO = MediaKind(
+    "video",
+    suffixes=(".mp4", ".m4v", ".mov", ".webm", ".mkv"),
+    media_types=("video/mp4", "video/quicktime", "video/webm", "video/x-matroska",
+                 "video/x-m4v"),
+    sniff=is_video_bytes)
+
+#: Every kind batch work reads, in the order they are tried (an image brand of ISO-BMFF is an
+#: image before it could be a video).
+KINDS: tuple[MediaKind, ...] = (IMAGE, VIDEO)
 
 #: Names found in folders and archives that are read without sniffing their bytes.
 IMAGE_SUFFIXES = IMAGE.suffixes
 #: Image types the decoder reads, as declared media types.
 IMAGE_MEDIA_TYPES = IMAGE.media_types
+#: Video file name endings and declared media types (`lishield_guard.video`).
+VIDEO_SUFFIXES = VIDEO.suffixes
+VIDEO_MEDIA_TYPES = VIDEO.media_types
 
 
 def kind_of_name(name: str, kinds: tuple[MediaKind, ...] = KINDS) -> MediaKind | None:
@@ -90,8 +123,8 @@ def kind_of_name(name: str, kinds: tuple[MediaKind, ...] = KINDS) -> MediaKind |
 
     Examples
     --------
-    >>> kind_of_name("A.JFIF").name, kind_of_name("notes.txt")
-    ('image', None)
+    >>> kind_of_name("A.JFIF").name, kind_of_name("clip.MOV").name, kind_of_name("notes.txt")
+    ('image', 'video', None)
     """
     return next((k for k in kinds if k.has_name(name)), None)
 

@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from lishield_guard.batch import EvidenceCache, WorkerCrashed, list_files, run_pool, worker_state
+from lishield_guard.batch import (
+    IMAGE,
+    EvidenceCache,
+    WorkerCrashed,
+    list_files,
+    run_pool,
+    worker_state,
+)
 from lishield_guard.batch.pool import progress_bar
 from lishield_guard.calibration.bounds import claim, images_needed, null_model_far
 from lishield_guard.calibration.evidence import (
@@ -95,7 +102,7 @@ def list_images(folder: Path | None) -> list[tuple[Path, dict]]:
                 r = json.loads(line)
                 if "file" in r:
                     rows[str((mf.parent / r["file"]).resolve())] = r
-    return [(p, rows.get(str(p.resolve()), {})) for p in list_files(folder)]
+    return [(p, rows.get(str(p.resolve()), {})) for p in list_files(folder, kinds=(IMAGE,))]
 
 
 def _origin_names(dirs: list[Path]) -> list[str]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -24,7 +25,7 @@ from lishield_guard.video.screen import COMBINE_LAMBDA, clip_logit, screen_video
 from lishield_guard.video.settings import VideoConfig
 
 __all__ = ["ClipScores", "VideoCalibration", "calibrate_video", "clip_scores",
-           "flag_threshold", "markov_far"]
+           "flag_threshold", "markov_far", "score_clips"]
 
 MIN_TAIL_CLIPS = 20  # fewer clean tuning clips than this cannot set a threshold
 
@@ -157,3 +158,28 @@ def calibrate_video(clean: list[ClipScores], vcfg: VideoConfig, *, target_far: f
                             far_bound=bound, met=bool(bound <= target_far),
                             markov_bound=markov, n_errors=len(clean) - len(ok), tpr=tpr,
                             n_pos=n_pos)
+
+
+def _score_work(args: tuple) -> ClipScores:
+    from lishield_guard.batch.pool import worker_state
+
+    path, label = args
+    config, vcfg = worker_state()
+    return clip_scores(path, os.path.basename(path), config, vcfg, label)
+
+
+def score_clips(paths, config: AppConfig, vcfg: VideoConfig, *, label: int | None = None,
+                jobs: int = 1, progress: bool = False, desc: str = "clips") -> list[ClipScores]:
+    """`clip_scores` of every clip in ``paths``, in worker processes, in input order."""
+    from lishield_guard.batch.pool import progress_bar, run_pool
+
+    paths = [str(p) for p in paths]
+    out: list[ClipScores] = []
+    with progress_bar(desc, total=len(paths), enabled=progress) as bar:
+        for (path, _), res in run_pool(_score_work, [(p, label) for p in paths], jobs=jobs,
+                                       state=(config, vcfg), ordered=True):
+            out.append(res if isinstance(res, ClipScores) else
+                       ClipScores(os.path.basename(path), (), (), -math.inf, label,
+                                  f"worker_crashed: {res}"))
+            bar.update()
+    return out

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lishield_guard.batch.types import VIDEO_SUFFIXES, is_video_bytes
 from lishield_guard.errors import (
     CorruptVideoError,
     EmptyImageError,
@@ -33,19 +34,8 @@ from lishield_guard.video.settings import VideoLimits
 __all__ = ["VIDEO_SUFFIXES", "DecodedFrame", "VideoInfo", "VideoReader", "is_video_bytes",
            "open_video"]
 
-#: File name endings read as videos (lower case).
-VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".webm", ".mkv")
-_FTYP = b"ftyp"
-_EBML = b"\x1a\x45\xdf\xa3"  # Matroska / WebM
 _KNOWN_CODECS = ("h264", "hevc", "vp8", "vp9", "av1", "mpeg4")
-# Decoded bytes of one frame per pixel: YUV 4:2:0 from the decoder plus the RGB copy we keep.
-FRAME_BYTES_PER_PIXEL = 4.5
-
-
-def is_video_bytes(head: bytes) -> bool:
-    """Whether ``head`` (the first bytes of a file or upload) starts like an MP4/MOV or a
-    Matroska/WebM container."""
-    return head[4:8] == _FTYP or head[:4] == _EBML
+DECODED_BYTES_PER_PIXEL = 1.5  # a decoded YUV 4:2:0 frame (what the decoder writes)
 
 
 @dataclass(frozen=True)
@@ -168,8 +158,13 @@ class VideoReader:
         self.info = info
         self.limits = limits
         self.decoded_frames = 0  # frames the decoder produced, kept or not (the work done)
-        self.budget_hit = False  # `VideoLimits.max_decoded_frames` stopped a decode
+        self.budget_hit = False  # the decode budget (`max_decoded_frames`) stopped a decode
         self._at_end = False
+        frame_bytes = info.width * info.height * DECODED_BYTES_PER_PIXEL
+        #: decode budget: `VideoLimits.max_decoded_frames`, fewer for frames so large that
+        #: `VideoLimits.max_decoded_bytes` is reached first
+        self.max_decoded_frames = max(1, min(limits.max_decoded_frames,
+                                             int(limits.max_decoded_bytes // frame_bytes)))
         self._tb = float(stream.time_base)
         self._start = float(stream.start_time or 0) * self._tb
 
@@ -195,7 +190,7 @@ class VideoReader:
         """Decode the frames at (or just after) ``times_s``, in time order.
 
         Each target seeks to the keyframe before it unless the previous target's decode is
-        already nearer; the decode stops when `VideoLimits.max_decoded_frames` frames have
+        already nearer; the decode stops when `max_decoded_frames` frames have
         been produced in all (the caller sees fewer frames, never a partial one).
 
         Raises
@@ -234,7 +229,7 @@ class VideoReader:
         try:
             for frame in self._container.decode(self._stream):
                 self.decoded_frames += 1
-                if self.decoded_frames > self.limits.max_decoded_frames:
+                if self.decoded_frames > self.max_decoded_frames:
                     self.budget_hit = True
                     return None
                 last = frame

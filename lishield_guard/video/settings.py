@@ -30,6 +30,9 @@ class VideoLimits:
     max_decoded_frames : int
         Most frames decoded for one screen (the work bound: a frame between a keyframe and a
         screened frame counts too); the screen stops with what it has when it is reached.
+    max_decoded_bytes : int
+        Most bytes of decoded frames (YUV 4:2:0, 1.5 bytes per pixel) for one screen: for
+        frames over 4K this bounds the decoding before `max_decoded_frames` does.
     """
 
     max_bytes: int = 512 * 1024 * 1024
@@ -37,6 +40,7 @@ class VideoLimits:
     max_frames: int = 36_000
     max_frame_pixels: int = 7680 * 4320
     max_decoded_frames: int = 240
+    max_decoded_bytes: int = 1024 * 1024 * 1024
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
