@@ -109,8 +109,8 @@ def _root(
     """
 
 # Modules under lishield_guard/commands that register commands, in help order.
-COMMAND_MODULES = ("detect", "scan", "serve", "calibrate", "bench", "spec", "firmware", "synth",
-                   "config")
+COMMAND_MODULES = ("detect", "scan", "serve", "calibrate", "calibrate_videos", "bench", "spec",
+                   "firmware", "synth", "config")
 
 for _name in COMMAND_MODULES:
     try:

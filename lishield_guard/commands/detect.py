@@ -70,7 +70,11 @@ def _describe(v, label: str, *, explain: bool) -> str:
     else:
         lines.append(f"{label}: clean, not protected (no policy barcode found)")
     stage = ev.get("stage")
-    if stage == "learned":
+    if stage == "video":
+        vid = ev.get("video", {})
+        counts = (f"clip logit {ev.get('logit')} {'>=' if v.protected else '<'} threshold "
+                  f"{ev.get('threshold_logit'):.3g} over {vid.get('frames_screened')} frames")
+    elif stage == "learned":
         counts = (f"decision logit {ev.get('logit')} "
                   f"{'>=' if v.protected else '<'} threshold {ev.get('threshold_logit'):.3g}")
     elif v.profile == "cascade" and v.protected and stage not in (None, "tones"):
@@ -90,7 +94,9 @@ def _describe(v, label: str, *, explain: bool) -> str:
     total = sum(t.values())
     lines.append("  timings: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in t.items())
                  + f" (total {total:.1f} ms)")
-    if explain and isinstance(ev.get("physics"), dict):
+    if explain and isinstance(ev.get("video"), dict):
+        lines += _explain_frames(ev["video"])
+    elif explain and isinstance(ev.get("physics"), dict):
         ph = ev["physics"]
         lines.append(f"  physics (cascade profile, on request): "
                      f"{'explains it' if ph['protected'] else 'no pattern fit passes'}: "
@@ -103,6 +109,22 @@ def _describe(v, label: str, *, explain: bool) -> str:
             lines.append("  peak frequencies (Hz at nominal row rate): "
                          + ", ".join(f"{f:g}" for f in ev["frequencies_hz"]))
     return "\n".join(lines)
+
+
+def _explain_frames(video: dict) -> list[str]:
+    """``--explain``'s lines on a clip: its header, why screening stopped, every frame."""
+    info = video.get("info", {})
+    lines = [f"  video: {info.get('codec')} {info.get('width')}x{info.get('height')}, "
+             f"{info.get('duration_s')} s at {info.get('frame_rate_hz')} fps, rotation "
+             f"{info.get('rotation_deg')}; {video.get('frames_screened')} frames screened, "
+             f"{video.get('frames_decoded')} decoded; stopped: {video.get('stop')}; clip logit "
+             f"after each run: {', '.join(f'{c:.2f}' for c in video.get('checkpoints', []))}"]
+    for f in video.get("frames", []):
+        score = "undetermined" if f.get("logit") is None else f"logit {f['logit']:.2f}"
+        lines.append(f"    frame {f['index']} ({f['time_s']:.2f} s, run {f['run']}"
+                     f"{', keyframe' if f.get('keyframe') else ''}): {score} "
+                     f"{f.get('where') or f.get('undetermined') or ''}")
+    return lines
 
 
 def _with_physics(verdict, source, cfg):
@@ -218,7 +240,7 @@ def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
                 plot: Path | None, several: bool) -> ExitCode:
     """Detect on one image (a path, or - for stdin), print its verdict (and write its plot);
     its exit code."""
-    from lishield_guard.detector import detect
+    from lishield_guard.video import detect_media
 
     if image == "-":
         source: Any = sys.stdin.buffer.read()
@@ -228,8 +250,8 @@ def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
     if image != "-" and not Path(image).exists():  # an input error, as in scan records
         return _input_error(label, "no such file", "not_found")
     try:
-        verdict = detect(source, cfg)
-        if explain and verdict.protected and verdict.profile == "default":
+        verdict = detect_media(source, cfg)
+        if explain and verdict.protected and (verdict.evidence or {}).get("stage") == "learned":
             verdict = _with_physics(verdict, source, cfg)
     except LishieldError as exc:
         return _input_error(label, str(exc), exc.code)  # never clean
@@ -254,8 +276,9 @@ def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
 def detect_command(
     images: Annotated[list[str], typer.Argument(
         metavar="IMG...", show_default=False,
-        help="Image files (JPEG, PNG, WebP, TIFF, BMP, HEIC), or - for one image on stdin. "
-             "For folders and archives use `lishield-guard scan`.")],
+        help="Image files (JPEG, PNG, WebP, TIFF, BMP, HEIC) or video clips (MP4, MOV, WebM, "
+             "MKV), or - for one on stdin. For folders and archives use `lishield-guard "
+             "scan`.")],
     explain: Annotated[bool, typer.Option("--explain", help="Also print the evidence: fitted "
                                           "parameters, tones, every candidate.")] = False,
     plot: Annotated[Path | None, typer.Option(
@@ -270,7 +293,11 @@ def detect_command(
     as_json: Annotated[bool, typer.Option(
         "--json", help="Print one JSON object per image (Verdict.to_dict() plus path).")] = False,
 ) -> None:
-    """Decide whether images carry a policy barcode; print the verdict and its reason.
+    """Decide whether images or video clips carry a policy barcode; print the verdict and why.
+
+    A clip is screened frame by frame until its verdict is certain (at most 16 frames; the
+    evidence of the frames adds up); --explain lists every screened frame's score and --plot
+    draws the deciding frame and the per-frame scores.
 
     Exit status: 0 every image clean; 1 at least one protected (wins over errors); 2 usage
     error (bad arguments or config); 3 nothing protected but a missing, unreadable or
@@ -280,6 +307,7 @@ def detect_command(
       lishield-guard detect photo.jpg
       lishield-guard detect a.jpg b.png --json
       lishield-guard detect photo.jpg --explain --plot verdict.png
+      lishield-guard detect clip.mp4 --explain
     """
     try:
         cfg = resolve_config(config, profile)

@@ -25,9 +25,9 @@ from lishield_guard.video.screen import COMBINE_LAMBDA, clip_logit, screen_video
 from lishield_guard.video.settings import VideoConfig
 
 __all__ = ["ClipScores", "VideoCalibration", "calibrate_video", "clip_scores",
-           "flag_threshold", "markov_far", "score_clips"]
+           "flag_threshold", "markov_far", "run_video_calibration", "score_clips"]
 
-MIN_TAIL_CLIPS = 20  # fewer clean tuning clips than this cannot set a threshold
+MIN_TAIL_CLIPS = 8  # fewer clean tuning clips than this cannot set a threshold
 
 
 @dataclass(frozen=True)
@@ -183,3 +183,65 @@ def score_clips(paths, config: AppConfig, vcfg: VideoConfig, *, label: int | Non
                                   f"worker_crashed: {res}"))
             bar.update()
     return out
+
+
+def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, positives=None,
+                          target_far: float = 0.005, cert_fraction: float = 0.5,
+                          seed: int = 0, jobs: int = 1, progress: bool = False,
+                          command: str = "") -> VideoCalibration:
+    """List the clips, score them, set and certify the threshold, write the config.
+
+    Parameters
+    ----------
+    clean : list of path
+        Folders of clean clips (no barcode; any look-alike light), listed recursively.
+    base : AppConfig
+        The config whose ``[video]`` thresholds are replaced in the written file.
+    out : path
+        Config TOML to write (``threshold_logit`` set; the header states the certification).
+    report : path, optional
+        Folder for ``clips.jsonl`` (every clip's frame logits) and ``summary.json``.
+    positives : path, optional
+        Folder of barcode clips: their TPR at the chosen threshold is reported.
+
+    Raises
+    ------
+    ValueError
+        No clips, or too few clean tuning clips.
+    """
+    import dataclasses
+    import datetime
+    import json
+    from pathlib import Path
+
+    from lishield_guard.batch import VIDEO, list_files
+    from lishield_guard.config import dump_config
+
+    vcfg = base.video
+    clips = [p for d in clean for p in list_files(d, kinds=(VIDEO,))]
+    if not clips:
+        raise ValueError(f"no video clips under {', '.join(map(str, clean))}")
+    scores = score_clips(clips, base, vcfg, label=0, jobs=jobs, progress=progress,
+                         desc="clean clips")
+    pos = score_clips(list_files(positives, kinds=(VIDEO,)), base, vcfg, label=1, jobs=jobs,
+                      progress=progress, desc="barcode clips") if positives else None
+    cal = calibrate_video(scores, vcfg, target_far=target_far, cert_fraction=cert_fraction,
+                          seed=seed, positives=pos)
+    cfg = dataclasses.replace(base, video=dataclasses.replace(
+        vcfg, threshold_logit=cal.threshold_logit))
+    header = (f"calibrated by {command or 'run_video_calibration'} on "
+              f"{datetime.date.today().isoformat()}\n"
+              f"video: {cal.n_tune} clean tuning clips, {cal.n_cert} certification clips, "
+              f"{cal.flagged_cert} flagged; per-clip FAR <= {cal.far_bound:.4g} (exact 95% "
+              f"bound), target {target_far:g}: {'MET' if cal.met else 'NOT MET'}; "
+              f"dependence-free bound {cal.markov_bound:.3g}")
+    Path(out).write_text(dump_config(cfg, header="\n".join(
+        [ln for ln in base.header.splitlines() if ln] + [header])))
+    if report is not None:
+        rep = Path(report)
+        rep.mkdir(parents=True, exist_ok=True)
+        with open(rep / "clips.jsonl", "w", encoding="utf-8") as fh:
+            for c in [*scores, *(pos or [])]:
+                fh.write(json.dumps(c.to_dict()) + "\n")
+        (rep / "summary.json").write_text(json.dumps(cal.to_dict(), indent=1))
+    return cal

@@ -34,7 +34,6 @@ from lishield_guard.video.settings import VideoLimits
 __all__ = ["VIDEO_SUFFIXES", "DecodedFrame", "VideoInfo", "VideoReader", "is_video_bytes",
            "open_video"]
 
-_KNOWN_CODECS = ("h264", "hevc", "vp8", "vp9", "av1", "mpeg4")
 DECODED_BYTES_PER_PIXEL = 1.5  # a decoded YUV 4:2:0 frame (what the decoder writes)
 
 
@@ -296,9 +295,8 @@ def _reader(container, n_bytes: int, limits: VideoLimits) -> VideoReader:
     stream = container.streams.video[0]
     cc = stream.codec_context
     codec = cc.name
-    if codec not in _KNOWN_CODECS:
-        raise UnsupportedImageError(f"video codec {codec!r} is not read (known: "
-                                    f"{', '.join(_KNOWN_CODECS)})")
+    if cc.codec is None or not cc.codec.is_decoder:
+        raise UnsupportedImageError(f"no decoder for video codec {codec!r}")
     cc.thread_count = 1  # one thread per clip: the cost budget is per thread
     width, height = int(cc.width), int(cc.height)
     if width < 1 or height < 1:
