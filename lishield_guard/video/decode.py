@@ -268,17 +268,24 @@ def open_video(source, limits: VideoLimits | None = None) -> VideoReader:
 
     limits = limits or VideoLimits()
     src, n_bytes = _source_bytes(source, limits)
+    head = src.getvalue()[:16] if isinstance(src, io.BytesIO) else _head(src)
     try:
         container = av.open(src, mode="r", metadata_errors="ignore")
     except av.InvalidDataError as exc:
-        head = src.getvalue()[:16] if isinstance(src, io.BytesIO) else _head(src)
         if is_video_bytes(head):
             raise CorruptVideoError(f"broken or truncated video container: {exc}") from exc
         raise UnsupportedImageError(f"not a video FFmpeg reads: {exc}") from exc
     except (av.FFmpegError, OSError) as exc:
         raise UnsupportedImageError(f"cannot open video: {exc}") from exc
     try:
+        if "image" in container.format.name or container.format.name.endswith("_pipe"):
+            raise UnsupportedImageError(f"a still image ({container.format.name}), not a video")
         return _reader(container, n_bytes, limits)
+    except CorruptVideoError as exc:
+        container.close()
+        if is_video_bytes(head):
+            raise
+        raise UnsupportedImageError(f"not a video this screen reads: {exc}") from exc
     except BaseException:
         container.close()
         raise
