@@ -14,6 +14,7 @@ from fastapi_offline import FastAPIOffline
 import lishield_guard
 from lishield_guard import AppConfig, Limits, load_config
 from lishield_guard.threads import one_thread_per_worker
+from lishield_guard.video import detect_media
 from service.access_log import RequestContextMiddleware, configure_logging
 from service.deps import ServiceState
 from service.errors import install_error_handlers
@@ -29,7 +30,9 @@ WARMUP_SHAPE_ROWS_COLS = (256, 256)
 
 
 def effective_config(settings: ServiceSettings) -> AppConfig:
-    """Load the config file and tighten its limits with the service settings.
+    """Load the config file and tighten its limits with the service settings (the image
+    limits with ``max_upload_bytes`` and the pixel and decode caps, the video's ``max_bytes``
+    with ``max_video_upload_bytes``).
 
     Raises
     ------
@@ -40,7 +43,10 @@ def effective_config(settings: ServiceSettings) -> AppConfig:
     limits = Limits(max_pixels=settings.max_pixels or cfg.limits.max_pixels,
                     max_bytes=min(cfg.limits.max_bytes, settings.max_upload_bytes),
                     max_decode_bytes=settings.max_decode_bytes or cfg.limits.max_decode_bytes)
-    return dataclasses.replace(cfg, limits=limits)
+    video_limits = dataclasses.replace(cfg.video.limits, max_bytes=min(
+        cfg.video.limits.max_bytes, settings.max_video_upload_bytes))
+    video = dataclasses.replace(cfg.video, limits=video_limits)
+    return dataclasses.replace(cfg, limits=limits, video=video)
 
 
 def _tighten_openapi(app: FastAPI, settings: ServiceSettings) -> None:
@@ -74,8 +80,8 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
     settings : ServiceSettings, optional
         Default: read from ``LISHIELD_*`` environment variables.
     detect_fn : callable, optional
-        ``detect_fn(data, config) -> Verdict``; default `lishield_guard.detect` (tests inject
-        slow ones).
+        ``detect_fn(data, config) -> Verdict``; default `lishield_guard.video.detect_media`
+        (a video when the bytes are one, else an image; tests inject slow ones).
 
     Returns
     -------
@@ -90,7 +96,7 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
     configure_logging(settings.log_level)
     config = effective_config(settings)
     metrics = Metrics()
-    pool = DetectPool(detect_fn or lishield_guard.detect, config, settings, metrics)
+    pool = DetectPool(detect_fn or detect_media, config, settings, metrics)
     bodies = BodyBudget(settings.max_receiving_bytes, settings.retry_after_s)
     state = ServiceState(settings=settings, config=config, metrics=metrics, pool=pool,
                          bodies=bodies)
@@ -112,7 +118,8 @@ def create_app(settings: ServiceSettings | None = None, *, detect_fn: DetectFn |
     # no CDN, so the docs work on an air-gapped host.
     app = FastAPIOffline(title="lishield-guard upload screening",
                          version=lishield_guard.__version__,
-                         summary="Does an uploaded photo carry a LiShield privacy barcode?",
+                         summary="Does an uploaded photo or video carry a LiShield privacy "
+                         "barcode?",
                          lifespan=lifespan)
     app.state.service = state
     install_error_handlers(app)

@@ -14,6 +14,7 @@ from starlette.requests import ClientDisconnect
 from lishield_guard.errors import (
     ERROR_CODES,
     ConfigError,
+    CorruptVideoError,
     EmptyImageError,
     ImageDecodeError,
     ImageTooLargeError,
@@ -21,6 +22,7 @@ from lishield_guard.errors import (
     LishieldError,
     PayloadTooLargeError,
     UnsupportedImageError,
+    VideoTooLongError,
     error_code,
 )
 
@@ -36,7 +38,7 @@ log = logging.getLogger("lishield_guard.service")
 STATUS_BY_ERROR: dict[type[LishieldError], int] = {
     cls: error_code(cls.code).http_statuses[0]
     for cls in (EmptyImageError, UnsupportedImageError, ImageDecodeError, ImageTooLargeError,
-                PayloadTooLargeError, InvalidImageError)
+                PayloadTooLargeError, InvalidImageError, CorruptVideoError, VideoTooLongError)
 }
 
 _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found",

@@ -1,21 +1,23 @@
-"""Request parsing: capped body reading, multipart forms, the image bytes of a request."""
+"""Request parsing: capped body reading, multipart forms, the media (image or video) of a
+request."""
 
 from __future__ import annotations
 
 import asyncio
+from dataclasses import dataclass
 
 from fastapi import Request
 from starlette.datastructures import FormData, UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from lishield_guard import PayloadTooLargeError
+from lishield_guard.batch.types import IMAGE, SNIFF_BYTES, VIDEO, MediaKind
 from service.deps import ServiceState
 from service.errors import ServiceError
 from service.limits import too_large
 from service.settings import ServiceSettings
 
-__all__ = ["MULTIPART", "empty_body", "read_body", "read_form", "read_image", "release_body",
-           "upload_bytes"]
+__all__ = ["MULTIPART", "Media", "empty_body", "media_of", "read_body", "read_form",
+           "read_media", "release_body", "upload_bytes"]
 
 MULTIPART = "multipart/form-data"
 
@@ -116,27 +118,60 @@ async def read_form(request: Request, cap_bytes: int, *, max_files: int) -> Form
 
 def empty_body() -> ServiceError:
     """400 ``empty_body``: there is nothing to screen."""
-    return ServiceError(400, "empty_body", "no image bytes: send the image as multipart field "
-                        "'file' or as the raw request body")
+    return ServiceError(400, "empty_body", "no image or video bytes: send the file as "
+                        "multipart field 'file' or as the raw request body")
+
+
+@dataclass(frozen=True)
+class Media:
+    """The bytes of one upload and the kind they are (`lishield_guard.batch.types`)."""
+
+    data: bytes
+    kind: MediaKind
+
+
+def media_of(data: bytes, settings: ServiceSettings) -> Media:
+    """Tell an upload's kind by its bytes and hold it to that kind's size cap.
+
+    A video is what `VIDEO.sniff` recognises (MP4/MOV, WebM/Matroska); anything else is
+    screened as an image, as `lishield_guard.video.detect_media` does. The declared
+    content type does not decide.
+
+    Raises
+    ------
+    ServiceError
+        400 ``empty_body`` for no bytes; 413 ``payload_too_large`` past the kind's cap
+        (``max_upload_bytes`` or ``max_video_upload_bytes``).
+    """
+    if not data:
+        raise empty_body()
+    kind = VIDEO if VIDEO.sniff(data[:SNIFF_BYTES]) else IMAGE
+    name, cap = settings.upload_cap(kind.name)
+    if len(data) > cap:
+        raise too_large(len(data), cap, what=f"{kind.name} ({name})")
+    return Media(data, kind)
 
 
 async def upload_bytes(upload: UploadFile, cap_bytes: int) -> bytes:
     """Bytes of one multipart file part, at most ``cap_bytes``."""
     data = await upload.read(cap_bytes + 1)
     if len(data) > cap_bytes:
-        raise ServiceError(413, PayloadTooLargeError.code,
-                           f"file has more than {cap_bytes} bytes (max_upload_bytes)")
+        raise too_large(f"more than {cap_bytes}", cap_bytes, what="file")
     if not data:
         raise empty_body()
     return data
 
 
-async def read_image(request: Request, settings: ServiceSettings) -> bytes:
-    """Image bytes of ``/v1/screen``: multipart field ``file``, or else the raw body."""
+async def read_media(request: Request, settings: ServiceSettings) -> Media:
+    """The upload of ``/v1/screen``: multipart field ``file``, or else the raw body.
+
+    Up to `ServiceSettings.max_media_bytes` are read; `media_of` then holds the bytes to
+    their kind's cap.
+    """
     svc: ServiceState = request.app.state.service
     if svc.pool.full():  # refuse before receiving megabytes that could not be screened
         raise svc.pool.overloaded()
-    cap = settings.max_upload_bytes
+    cap = settings.max_media_bytes
     if request.headers.get("content-type", "").lower().startswith(MULTIPART):
         form = await read_form(request, cap + settings.multipart_overhead_bytes, max_files=1)
         try:
@@ -147,10 +182,7 @@ async def read_image(request: Request, settings: ServiceSettings) -> bytes:
             if not isinstance(upload, UploadFile):
                 raise ServiceError(422, "invalid_request", "multipart field 'file' must be a "
                                    "file part (with a filename)")
-            return await upload_bytes(upload, cap)
+            return media_of(await upload_bytes(upload, cap), settings)
         finally:
             await form.close()
-    data = await read_body(request, cap)
-    if not data:
-        raise empty_body()
-    return data
+    return media_of(await read_body(request, cap), settings)

@@ -1,4 +1,4 @@
-"""The detection pool: bounded admission, a time budget per request, isolated workers."""
+"""The detection pool: bounded admission, a time budget per detection, isolated workers."""
 
 from __future__ import annotations
 
@@ -23,17 +23,19 @@ DISCONNECT_POLL_S = 0.25  # how often a waiting detection checks that its client
 
 
 class DetectPool:
-    """Runs detections in a thread pool with bounded admission and a per-request time budget.
+    """Runs detections in a thread pool with bounded admission and a time budget per media.
 
     Parameters
     ----------
     detect_fn : callable
-        ``detect_fn(data, config) -> Verdict``, normally `lishield_guard.detect`.
+        ``detect_fn(data, config) -> Verdict``, normally `lishield_guard.video.detect_media`
+        (a video when the bytes are one, else an image).
     config : AppConfig
         Config handed to every call.
     settings : ServiceSettings
         ``max_concurrency`` threads run detections; ``max_queue`` more may wait; beyond, 503.
-        ``detect_timeout_s`` bounds queue wait plus detection.
+        ``detect_timeout_s`` (an image) or ``video_timeout_s`` (a video) bounds queue wait
+        plus detection (`ServiceSettings.time_budget`).
     metrics : Metrics
         Gauges and counters updated here.
 
@@ -59,7 +61,7 @@ class DetectPool:
         self._config = config
         self._n_threads = settings.max_concurrency
         self._capacity = settings.max_concurrency + settings.max_queue
-        self._timeout_s = settings.detect_timeout_s
+        self._settings = settings
         self._retry_after_s = settings.retry_after_s
         self._metrics = metrics
         self._admitted = 0
@@ -102,11 +104,14 @@ class DetectPool:
         for f in futs:
             f.result()
 
-    async def detect(self, data: bytes, *, request: Request | None = None) -> Verdict:
+    async def detect(self, data: bytes, *, kind: str = "image",
+                     request: Request | None = None) -> Verdict:
         """Detect in a worker; 503 ``overloaded`` when full, 504 ``timeout`` when slow.
 
-        With ``request``, a client that goes away while its detection waits or runs ends the
-        detection (checked every `DISCONNECT_POLL_S`) and raises ``ClientDisconnect``.
+        ``kind`` ("image" or "video", as `service.parsing.media_of` tells) picks the time
+        budget. With ``request``, a client that goes away while its detection waits or runs
+        ends the detection (checked every `DISCONNECT_POLL_S`) and raises
+        ``ClientDisconnect``.
         """
         with self._lock:
             if self._admitted >= self._capacity:
@@ -121,8 +126,9 @@ class DetectPool:
             raise
         fut.add_done_callback(self._release)
         waiter = asyncio.wrap_future(fut)
+        budget, timeout_s = self._settings.time_budget(kind)
         try:
-            async with asyncio.timeout(self._timeout_s):
+            async with asyncio.timeout(timeout_s):
                 while not waiter.done():
                     await asyncio.wait({waiter}, timeout=DISCONNECT_POLL_S)
                     if (not waiter.done() and request is not None
@@ -132,8 +138,8 @@ class DetectPool:
         except TimeoutError:
             self._abandon(fut, job, waiter)
             self._metrics.timeouts.inc()
-            raise ServiceError(504, "timeout", f"detection exceeded detect_timeout_s="
-                               f"{self._timeout_s}") from None
+            raise ServiceError(504, "timeout", f"{kind} detection exceeded {budget}="
+                               f"{timeout_s}") from None
         except (ClientDisconnect, asyncio.CancelledError):
             self._abandon(fut, job, waiter)
             raise

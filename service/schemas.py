@@ -43,8 +43,11 @@ class ScreenResult(BaseModel):
     profile: str
     skipped: list[str] = Field(description="Work not done, and why.")
     timings_ms: dict[str, float] = Field(description="Wall time per stage, milliseconds.")
-    evidence: dict[str, Any] | None = Field(default=None,
-                                            description="Only with ?explain=true.")
+    evidence: dict[str, Any] | None = Field(
+        default=None, description="Only with ?explain=true. A video's evidence has stage "
+        "'video', deciding_frames, best_frame and video: {info, stop, frames_screened, "
+        "frames_decoded, clip_logit, threshold_logit, checkpoints, frames: [{index, time_s, "
+        "logit, where, keyframe, run}]}.")
     undetermined_reason: str | None = Field(
         default=None, description="Why the detector could not look (status undetermined).")
     request_id: str | None = None
@@ -81,7 +84,10 @@ class PoliciesInfo(BaseModel):
 
     config_source: str
     detector: dict[str, Any]
-    limits: dict[str, int]
+    limits: dict[str, int] = Field(description="Image input limits (bytes, pixels).")
+    video_limits: dict[str, float] = Field(
+        default_factory=dict, description="Video input limits: max_bytes, max_duration_s, "
+        "max_frames, max_frame_pixels, max_decoded_frames, max_decoded_bytes.")
     policies: list[PolicyInfo]
 
 

@@ -32,6 +32,10 @@ class ServiceSettings(BaseSettings):
     max_upload_bytes : int
         Largest image accepted, in bytes; the request body of ``/v1/screen`` may exceed it by
         ``multipart_overhead_bytes`` (form boundaries and headers).
+    max_video_upload_bytes : int
+        Largest video accepted, in bytes (default 128 MiB). A body is read up to the larger of
+        the two caps; once its bytes say which kind it is, each kind is held to its own cap.
+        The config file's ``video.limits.max_bytes`` is tightened to it.
     multipart_overhead_bytes : int
         Slack for multipart framing on top of ``max_upload_bytes``, in bytes.
     max_batch_files : int
@@ -54,7 +58,11 @@ class ServiceSettings(BaseSettings):
     max_queue : int
         Detections allowed to wait for a thread; beyond, requests get 503 ``overloaded``.
     detect_timeout_s : float
-        Budget of one detection including its queue wait, in seconds; beyond, 504 ``timeout``.
+        Budget of one image's detection including its queue wait, in seconds; beyond, 504
+        ``timeout``.
+    video_timeout_s : float
+        Budget of one video's screening including its queue wait, in seconds (default 30);
+        beyond, 504 ``timeout``.
     detect_isolation : {"process", "thread"}
         Where detections run: ``"process"`` (default) in worker processes that are ended when
         a detection times out or its client leaves, so abandoned work stops at once;
@@ -74,6 +82,7 @@ class ServiceSettings(BaseSettings):
     api_token: SecretStr | None = None
     protect_metrics: bool = True
     max_upload_bytes: int = Field(default=32 * 1024 * 1024, ge=1)
+    max_video_upload_bytes: int = Field(default=128 * 1024 * 1024, ge=1)
     multipart_overhead_bytes: int = Field(default=64 * 1024, ge=0)
     max_batch_files: int = Field(default=16, ge=1)
     max_batch_bytes: int = Field(default=128 * 1024 * 1024, ge=1)
@@ -84,7 +93,26 @@ class ServiceSettings(BaseSettings):
     max_concurrency: int = Field(default_factory=_default_concurrency, ge=1)
     max_queue: int = Field(default=16, ge=0)
     detect_timeout_s: float = Field(default=10.0, gt=0)
+    video_timeout_s: float = Field(default=30.0, gt=0)
     detect_isolation: Literal["process", "thread"] = "process"
     retry_after_s: int = Field(default=1, ge=0)
     warmup: bool = True
     log_level: str = "INFO"
+
+    def upload_cap(self, kind: str) -> tuple[str, int]:
+        """``(setting name, bytes)``: the size cap of one upload of ``kind`` ("image" or
+        "video")."""
+        if kind == "video":
+            return "max_video_upload_bytes", self.max_video_upload_bytes
+        return "max_upload_bytes", self.max_upload_bytes
+
+    def time_budget(self, kind: str) -> tuple[str, float]:
+        """``(setting name, seconds)``: the time budget of one detection of ``kind``."""
+        if kind == "video":
+            return "video_timeout_s", self.video_timeout_s
+        return "detect_timeout_s", self.detect_timeout_s
+
+    @property
+    def max_media_bytes(self) -> int:
+        """The larger upload cap: how much of a body is read before its kind is known."""
+        return max(self.max_upload_bytes, self.max_video_upload_bytes)

@@ -16,9 +16,11 @@ router = APIRouter(prefix="/v1", tags=["config"], dependencies=[Depends(require_
 
 @router.get("/policies", response_model=PoliciesInfo, responses={401: {"model": ErrorBody}})
 async def policies(svc: ServiceState = Depends(get_service)) -> PoliciesInfo:
-    """Policies the service screens for, with detector thresholds and input limits."""
+    """Policies the service screens for, with detector thresholds and input limits (images'
+    and videos')."""
     cfg = svc.config
     detector = dataclasses.asdict(cfg.detector)  # one table per stage, None: stage off
     return PoliciesInfo(config_source=cfg.source, detector=detector,
                         limits=dataclasses.asdict(cfg.limits),
+                        video_limits=dataclasses.asdict(cfg.video.limits),
                         policies=[PolicyInfo(**p.to_dict()) for p in cfg.policies])

@@ -1,9 +1,11 @@
-"""Helpers of the service tests: a live uvicorn server and hand-crafted hostile images."""
+"""Helpers of the service tests: a live uvicorn server, a headless browser and hand-crafted
+hostile images."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+import shutil
 import socket
 import struct
 import threading
@@ -13,6 +15,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import httpx
+import pytest
 import uvicorn
 from PIL import Image
 
@@ -123,3 +126,61 @@ def bomb_png(n_side: int = 6000) -> bytes:
     buf = io.BytesIO()
     Image.new("L", (n_side, n_side), 0).save(buf, format="PNG", optimize=True)
     return buf.getvalue()
+
+
+def _browser_paths() -> tuple[str, str]:
+    """Paths of a Chromium binary and its driver, or skip with the reason."""
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        pytest.skip("selenium is not installed (pip install -e '.[dev]')")
+    chromium = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser",
+                                                           "google-chrome")) if p), None)
+    driver = shutil.which("chromedriver")
+    if chromium is None or driver is None:
+        pytest.skip("no headless browser: Chromium and chromedriver are not installed "
+                    "(Debian: apt-get install chromium chromium-driver; `make test` does it "
+                    "when run as root)")
+    return chromium, driver
+
+
+@contextlib.contextmanager
+def headless_browser() -> Iterator[object]:
+    """A headless Chromium driven by Selenium (skips when there is none), quit afterwards."""
+    chromium, driver_path = _browser_paths()
+    from selenium import webdriver
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
+                "--window-size=1400,1500", "--no-proxy-server"):
+        opts.add_argument(arg)
+    try:
+        browser = webdriver.Chrome(service=Service(executable_path=driver_path), options=opts)
+    except WebDriverException as exc:
+        pytest.skip(f"Chromium would not start: {exc.msg}")
+    try:
+        yield browser
+    finally:
+        browser.quit()
+
+
+def review_upload(browser, url: str, path, token: str | None = None) -> None:
+    """Open the reviewer page at ``url``, upload ``path`` and wait until it has answered
+    (``document.body.dataset.state`` is done or error)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.get(url + "/review")
+    assert "lishield-guard" in browser.title
+    if token:
+        browser.find_element(By.ID, "token").send_keys(token)
+    file_input = browser.find_element(By.ID, "file")
+    browser.execute_script("arguments[0].style.display = 'block';", file_input)
+    file_input.send_keys(str(path))
+    WebDriverWait(browser, 120).until(
+        lambda b: b.execute_script("return document.body.dataset.state") in ("done", "error"))
+    error = browser.find_element(By.ID, "error")
+    assert not error.is_displayed(), error.text

@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from svc_helpers import live_server, make_settings
+from svc_helpers import headless_browser, live_server, make_settings, review_upload
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 TOKEN = "review-test-token"
@@ -73,55 +73,16 @@ def test_review_answers_verdict_reason_and_figure(authed, demo_pair):
         assert bad.status_code == 415 and bad.json()["code"] == "unsupported_media_type"
 
 
-def _browser() -> tuple[str, str]:
-    """Paths of a Chromium binary and its driver, or skip with the reason."""
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        pytest.skip("selenium is not installed (pip install -e '.[dev]')")
-    chromium = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser",
-                                                           "google-chrome")) if p), None)
-    driver = shutil.which("chromedriver")
-    if chromium is None or driver is None:
-        pytest.skip("no headless browser: Chromium and chromedriver are not installed "
-                    "(Debian: apt-get install chromium chromium-driver; `make test` does it "
-                    "when run as root)")
-    return chromium, driver
-
-
 def test_reviewer_page_in_a_headless_browser(authed, demo_pair, tmp_path):
-    chromium, driver_path = _browser()
-    from selenium import webdriver
-    from selenium.common.exceptions import WebDriverException
-    from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1400,1500", "--no-proxy-server"):
-        opts.add_argument(arg)
-    try:
-        browser = webdriver.Chrome(service=Service(executable_path=driver_path), options=opts)
-    except WebDriverException as exc:
-        pytest.skip(f"Chromium would not start: {exc.msg}")
     image = Path(os.environ.get("LISHIELD_REVIEW_IMAGE") or demo_pair[0]).resolve()
     with authed.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
         expected = c.post("/v1/review", content=image.read_bytes(),
                           headers={"Content-Type": "application/octet-stream"}).json()
-    try:
-        browser.get(authed.url + "/review")
-        assert "lishield-guard" in browser.title
-        browser.find_element(By.ID, "token").send_keys(TOKEN)
-        file_input = browser.find_element(By.ID, "file")
-        browser.execute_script("arguments[0].style.display = 'block';", file_input)
-        file_input.send_keys(str(image))
-        WebDriverWait(browser, 120).until(
-            lambda b: b.execute_script("return document.body.dataset.state") in ("done",
-                                                                                 "error"))
-        error = browser.find_element(By.ID, "error")
-        assert not error.is_displayed(), error.text
+    with headless_browser() as browser:
+        review_upload(browser, authed.url, image, token=TOKEN)
         title = browser.find_element(By.ID, "title")
         assert title.text == expected["title"]
         assert title.get_attribute("data-status") == expected["status"]
@@ -131,6 +92,7 @@ def test_reviewer_page_in_a_headless_browser(authed, demo_pair, tmp_path):
             "return i.complete && i.naturalWidth > 0"))
         width = browser.execute_script("return document.getElementById('figure').naturalWidth")
         assert width >= 800
+        assert not browser.find_element(By.ID, "frames-box").is_displayed()  # photos: no table
         browser.execute_script("document.querySelector('#drop').scrollIntoView()")
         shot = tmp_path / "review_page.png"
         assert browser.save_screenshot(str(shot)) and shot.read_bytes()[:8] == PNG_MAGIC
@@ -138,5 +100,3 @@ def test_reviewer_page_in_a_headless_browser(authed, demo_pair, tmp_path):
         if keep:
             Path(keep).mkdir(parents=True, exist_ok=True)
             shutil.copy(shot, Path(keep) / "review_page.png")
-    finally:
-        browser.quit()

@@ -1,4 +1,4 @@
-// lishield-guard reviewer page: POST the dropped image to /v1/review and show the answer.
+// lishield-guard reviewer page: POST the dropped image or clip to /v1/review and show the answer.
 "use strict";
 (function () {
   const $ = (id) => document.getElementById(id);
@@ -8,11 +8,45 @@
 
   function show(el, on) { el.hidden = !on; }
 
+  const VIDEO_NAME = /\.(mp4|m4v|mov|webm|mkv)$/i;
+
+  function preview(file) {
+    const isVideo = file.type.startsWith("video/") || VIDEO_NAME.test(file.name);
+    const [shown, hidden] = isVideo ? [$("preview-video"), $("preview")]
+      : [$("preview"), $("preview-video")];
+    hidden.removeAttribute("src");
+    show(hidden, false);
+    shown.src = URL.createObjectURL(file);
+    show(shown, true);
+  }
+
+  // One row per screened frame of a video verdict (evidence.video.frames), deciding ones marked.
+  function renderFrames(evidence) {
+    const video = evidence && evidence.video;
+    const body = $("frames").tBodies[0];
+    body.replaceChildren();
+    show($("frames-box"), Boolean(video));
+    if (!video) return;
+    const deciding = new Set(evidence.deciding_frames || []);
+    $("frames-note").textContent = video.frames_screened + " frames screened (" + video.frames_decoded
+      + " decoded), stopped: " + video.stop + "; clip logit " + Number(video.clip_logit).toFixed(2)
+      + " against threshold " + Number(video.threshold_logit).toFixed(2) + ". Bold: deciding frames.";
+    for (const f of video.frames) {
+      const row = body.insertRow();
+      if (deciding.has(f.index)) row.className = "deciding";
+      const logit = f.logit === null || f.logit === undefined ? "-" : Number(f.logit).toFixed(2);
+      for (const text of [f.index, Number(f.time_s).toFixed(3), logit, f.keyframe ? "yes" : "",
+                          f.run, f.where || f.undetermined || ""]) {
+        row.insertCell().textContent = String(text);
+      }
+    }
+  }
+
   async function screen(file) {
     show($("error"), false);
     show($("busy"), true);
     document.body.dataset.state = "busy";
-    $("preview").src = URL.createObjectURL(file);
+    preview(file);
     $("file-name").textContent = file.name + " (" + file.size.toLocaleString() + " bytes)";
     const body = new FormData();
     body.append("file", file, file.name);
@@ -55,6 +89,7 @@
       show(fig, false);
       $("figure-caption").textContent = "No figure: " + (data.figure_error || "not available");
     }
+    renderFrames(v.evidence);
     $("json").textContent = JSON.stringify(v, null, 2);
     show($("result"), true);
     document.body.dataset.state = "done";
