@@ -25,6 +25,9 @@ def calibrate_videos_command(
     positives: Annotated[Path | None, typer.Option(
         "--positives", metavar="DIR",
         help="Folder of barcode clips: their TPR at the chosen threshold is reported.")] = None,
+    certify: Annotated[list[Path] | None, typer.Option(
+        "--certify", metavar="DIR", help="Folder of clean clips held out whole to certify "
+                                         "(repeatable; none of them tunes).")] = None,
     report: Annotated[Path | None, typer.Option(
         "--report", metavar="DIR", help="Write clips.jsonl (frame logits) and summary.json "
                                         "here.")] = None,
@@ -60,12 +63,13 @@ def calibrate_videos_command(
 
     if not 0 < target_far < 1 or not 0 < certify_fraction < 1 or jobs < 0:
         raise fail("need 0 < --target-far < 1, 0 < --certify-fraction < 1 and --jobs >= 0")
-    for d in [*clean, *([positives] if positives else [])]:
+    for d in [*clean, *(certify or []), *([positives] if positives else [])]:
         if not d.is_dir():
             raise fail(f"not a folder: {str(d)!r}")
     try:
         cal = run_video_calibration(
             clean, base=load_config(config), out=out, report=report, positives=positives,
+            certify=certify,
             target_far=target_far, cert_fraction=certify_fraction, seed=split_seed,
             jobs=jobs or os.cpu_count() or 1, progress=progress,
             command=" ".join(["lishield-guard", *sys.argv[1:]]))

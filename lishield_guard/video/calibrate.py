@@ -28,6 +28,8 @@ __all__ = ["ClipScores", "VideoCalibration", "calibrate_video", "clip_scores",
            "flag_threshold", "markov_far", "run_video_calibration", "score_clips"]
 
 MIN_TAIL_CLIPS = 8  # fewer clean tuning clips than this cannot set a threshold
+TAIL_QUANTILE = 0.9  # the clean clips above this quantile of the tuning part fit the tail ...
+TAIL_FAR_FRACTION = 0.1  # ... and the threshold is where it predicts a tenth of the target
 
 
 @dataclass(frozen=True)
@@ -126,9 +128,15 @@ class VideoCalibration:
 
 def calibrate_video(clean: list[ClipScores], vcfg: VideoConfig, *, target_far: float = 0.005,
                     cert_fraction: float = 0.5, seed: int = 0, nudge: float = 1e-3,
-                    positives: list[ClipScores] | None = None) -> VideoCalibration:
-    """Set ``threshold_logit`` just above every clean tuning clip's flag threshold and bound
-    the per-clip false-alarm rate on the certification clips.
+                    positives: list[ClipScores] | None = None,
+                    certify: list[ClipScores] | None = None) -> VideoCalibration:
+    """Set ``threshold_logit`` and bound the per-clip false-alarm rate on held-out clips.
+
+    The threshold is the higher of: just above every clean tuning clip's flag threshold, and
+    where an exponential fit of the tuning clips' tail (those above `TAIL_QUANTILE`) predicts
+    `TAIL_FAR_FRACTION` x ``target_far`` (`calibration.evidence.tail_threshold`, as for
+    photos): the largest of a few hundred clips is no margin, the fitted tail keeps one chosen
+    on the tuning part alone.
 
     Raises
     ------
@@ -136,12 +144,18 @@ def calibrate_video(clean: list[ClipScores], vcfg: VideoConfig, *, target_far: f
         Fewer than `MIN_TAIL_CLIPS` clean tuning clips.
     """
     ok = [c for c in clean if c.error is None]
-    cert = [c for c in ok if _in_cert(c.name, cert_fraction, seed)]
+    extra = [c for c in certify or () if c.error is None]
+    cert = [c for c in ok if _in_cert(c.name, cert_fraction, seed)] + extra
     tune = [c for c in ok if not _in_cert(c.name, cert_fraction, seed)]
+    ok += extra
     if len(tune) < MIN_TAIL_CLIPS:
         raise ValueError(f"need at least {MIN_TAIL_CLIPS} clean tuning clips, got {len(tune)}")
+    from lishield_guard.calibration.evidence import LearnedGrid, tail_threshold
+
     tune_thr = np.array([flag_threshold(c, vcfg) for c in tune])
-    thr = max(float(np.max(tune_thr)) + nudge, vcfg.clear_logit)
+    grid = LearnedGrid(tail_quantile=TAIL_QUANTILE, tail_far_fraction=TAIL_FAR_FRACTION)
+    thr = max(float(np.max(tune_thr)) + nudge, tail_threshold(tune_thr, target_far, grid),
+              vcfg.clear_logit)
     cert_thr = np.array([flag_threshold(c, vcfg) for c in cert])
     k = int(np.sum(cert_thr >= thr))
     bound = upper_bound(k, len(cert)) if cert else 1.0
@@ -156,7 +170,8 @@ def calibrate_video(clean: list[ClipScores], vcfg: VideoConfig, *, target_far: f
                             target_far=target_far, n_tune=len(tune), n_cert=len(cert),
                             flagged_tune=int(np.sum(tune_thr >= thr)), flagged_cert=k,
                             far_bound=bound, met=bool(bound <= target_far),
-                            markov_bound=markov, n_errors=len(clean) - len(ok), tpr=tpr,
+                            markov_bound=markov,
+                            n_errors=len(clean) + len(certify or ()) - len(ok), tpr=tpr,
                             n_pos=n_pos)
 
 
@@ -185,8 +200,24 @@ def score_clips(paths, config: AppConfig, vcfg: VideoConfig, *, label: int | Non
     return out
 
 
+def _barcode_clips(folder) -> list:
+    """The clips of ``folder``; only its label-1 clips when it has a dataset manifest."""
+    import json
+
+    from lishield_guard.batch import VIDEO, list_files
+
+    clips = list_files(folder, kinds=(VIDEO,))
+    manifest = folder / "manifest.jsonl"
+    if not manifest.exists():
+        return clips
+    labels = {json.loads(ln)["file"]: json.loads(ln).get("label")
+              for ln in manifest.read_text().splitlines() if ln.strip()}
+    return [p for p in clips if labels.get(p.name, 1) == 1]
+
+
 def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, positives=None,
-                          target_far: float = 0.005, cert_fraction: float = 0.5,
+                          certify: list | None = None, target_far: float = 0.005,
+                          cert_fraction: float = 0.5,
                           seed: int = 0, jobs: int = 1, progress: bool = False,
                           command: str = "") -> VideoCalibration:
     """List the clips, score them, set and certify the threshold, write the config.
@@ -201,8 +232,12 @@ def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, pos
         Config TOML to write (``threshold_logit`` set; the header states the certification).
     report : path, optional
         Folder for ``clips.jsonl`` (every clip's frame logits) and ``summary.json``.
+    certify : list of path, optional
+        Folders of clean clips used whole for certification (none of them tunes).
     positives : path, optional
-        Folder of barcode clips: their TPR at the chosen threshold is reported.
+        Folder of barcode clips: their TPR at the chosen threshold is reported (a folder with
+        a ``manifest.jsonl``, as `synth dataset --videos` writes, contributes its label-1
+        clips only).
 
     Raises
     ------
@@ -223,10 +258,13 @@ def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, pos
         raise ValueError(f"no video clips under {', '.join(map(str, clean))}")
     scores = score_clips(clips, base, vcfg, label=0, jobs=jobs, progress=progress,
                          desc="clean clips")
-    pos = score_clips(list_files(positives, kinds=(VIDEO,)), base, vcfg, label=1, jobs=jobs,
+    pos = score_clips(_barcode_clips(Path(positives)), base, vcfg, label=1, jobs=jobs,
                       progress=progress, desc="barcode clips") if positives else None
+    held = [p for d in certify or () for p in list_files(d, kinds=(VIDEO,))]
+    held_scores = score_clips(held, base, vcfg, label=0, jobs=jobs, progress=progress,
+                              desc="certification clips") if held else []
     cal = calibrate_video(scores, vcfg, target_far=target_far, cert_fraction=cert_fraction,
-                          seed=seed, positives=pos)
+                          seed=seed, positives=pos, certify=held_scores)
     cfg = dataclasses.replace(base, video=dataclasses.replace(
         vcfg, threshold_logit=cal.threshold_logit))
     header = (f"calibrated by {command or 'run_video_calibration'} on "
@@ -241,7 +279,7 @@ def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, pos
         rep = Path(report)
         rep.mkdir(parents=True, exist_ok=True)
         with open(rep / "clips.jsonl", "w", encoding="utf-8") as fh:
-            for c in [*scores, *(pos or [])]:
+            for c in [*scores, *held_scores, *(pos or [])]:
                 fh.write(json.dumps(c.to_dict()) + "\n")
         (rep / "summary.json").write_text(json.dumps(cal.to_dict(), indent=1))
     return cal
