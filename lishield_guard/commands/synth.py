@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from lishield_guard.commands import ExitCode
+from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import LishieldError
 
 __all__ = ["Codec", "Negative", "Phase", "Rotation", "Subsampling", "register"]
@@ -41,16 +41,11 @@ class Phase(StrEnum):
 
 
 
-def _fail(message: str, code: ExitCode = ExitCode.USAGE) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(int(code))
-
-
 def _parse_sets(values: list[str]) -> dict[str, str]:
     out: dict[str, str] = {}
     for v in values:
         if "=" not in v:
-            raise _fail(f"--set expects KEY=VALUE, got {v!r}")
+            raise fail(f"--set expects KEY=VALUE, got {v!r}")
         k, val = v.split("=", 1)
         out[k.strip()] = val.strip()
     return out
@@ -99,7 +94,7 @@ def dataset(
 
     try:
         if mix not in MIXES:
-            raise _fail(f"unknown --mix {mix!r}; known: {', '.join(MIXES)}")
+            raise fail(f"unknown --mix {mix!r}; known: {', '.join(MIXES)}")
         m = MIXES[mix].with_overrides(_parse_sets(sets)) if sets else MIXES[mix]
         if videos:
             from synth.video import write_video_dataset
@@ -112,9 +107,9 @@ def dataset(
                                      size=parse_size(size or "1080p"), jobs=jobs,
                                      progress=progress)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     except OSError as exc:
-        raise _fail(f"cannot write dataset: {exc}", ExitCode.ERROR) from None
+        raise fail(f"cannot write dataset: {exc}", ExitCode.ERROR) from None
     typer.echo(str(manifest))
 
 
@@ -169,62 +164,20 @@ def capture(
       lishield-guard synth capture --scene skimage:coffee -o protected.jpg
       lishield-guard synth capture --preset table2-rgb --rotate 90 -o rgb.jpg
     """
-    import dataclasses
-
-    import numpy as np
-
-    from firmware.sequence import compile_spec
-    from lishield_guard.camera import CameraModel
-    from lishield_guard.spec import get_preset
-    from synth.camera import auto_exposure_s, encode_jpeg, postprocess, simulate_frame
-    from synth.dataset import EMITTER_ALLOW, LED_CLOCK_HZ, parse_size
-    from synth.light import SequenceLight, coverage_map
-    from synth.scene import load_scene
-
     if exposure_s is not None and auto:
-        raise _fail("give either --exposure-s or --auto, not both")
-    phase = str(getattr(phase, "value", phase))
-    subsampling = str(getattr(subsampling, "value", subsampling))
-    rotate = int(getattr(rotate, "value", rotate))
-    if rotate not in ROTATIONS:
-        raise _fail(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
-    if not 0.0 < coverage <= 1.0:
-        raise _fail(f"--coverage must be in (0, 1], got {coverage}")
-    if not row_rate_hz > 0:
-        raise _fail(f"--row-rate-hz must be > 0, got {row_rate_hz}")
+        raise fail("give either --exposure-s or --auto, not both")
     try:
-        if order is not None and order not in ("cyclic", "random"):
-            try:
-                [int(i) for i in order.split(",") if i.strip()]
-            except ValueError:
-                raise _fail(f"--order must be cyclic or comma-separated tone indices, "
-                            f"got {order!r}") from None
-        spec = get_preset(preset)
-        if switching_hz is not None:
-            spec = dataclasses.replace(spec, switching_hz=switching_hz)
-        spec = dataclasses.replace(spec, phase=phase)
-        if order is not None:
-            spec = dataclasses.replace(spec, order=order if order in ("cyclic", "random") else
-                                       tuple(int(i) for i in order.split(",") if i.strip()))
-        light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW,
-                                           n_patterns=loop_patterns), rise_s=rise_s)
-        n_rows, n_cols = parse_size(size)
-        rng = np.random.default_rng(seed)
-        refl = load_scene(scene, n_rows, n_cols)
-        cmap = None if coverage >= 1.0 else coverage_map(n_rows, n_cols, fraction=coverage)
-        t_e = exposure_s if exposure_s is not None else auto_exposure_s(
-            refl, ambient_ratio=ambient_ratio, coverage=cmap)
-        camera = CameraModel(row_time_s=1.0 / row_rate_hz, n_rows=n_rows, exposure_s=t_e)
-        start_s = float(rng.uniform(0.0, 1.0))
-        frame = simulate_frame(light, refl, camera, rng=rng, start_s=start_s,
-                               ambient_ratio=ambient_ratio, coverage=cmap, gain=gain,
-                               noise=not no_noise)
-        img, orient = postprocess(frame, downscale=downscale, rotation_deg=rotate,
-                                  rotation_mode="exif" if rotate_exif else "bake")
-        data = encode_jpeg(img, quality=jpeg_quality, subsampling=subsampling,
-                           exif_orientation=orient)
+        spec, light = _capture_light(preset, switching_hz, str(getattr(phase, "value", phase)),
+                                     order, loop_patterns, rise_s)
+        data, img, frame, camera, start_s = _render_capture(
+            light, scene=scene, size=size, row_rate_hz=row_rate_hz, exposure_s=exposure_s,
+            ambient_ratio=ambient_ratio, coverage=coverage, gain=gain, noise=not no_noise,
+            seed=seed, downscale=downscale, rotate=int(getattr(rotate, "value", rotate)),
+            rotate_exif=rotate_exif, jpeg_quality=jpeg_quality,
+            subsampling=str(getattr(subsampling, "value", subsampling)))
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
+    t_e = camera.exposure_s
     try:
         output.parent.mkdir(parents=True, exist_ok=True)
         output.write_bytes(data)
@@ -233,10 +186,73 @@ def capture(
 
             capture_plot(plot, light=light, camera=camera, frame=frame, start_s=start_s)
     except OSError as exc:
-        raise _fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
+        raise fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
     typer.echo(f"{output} preset={spec.name} f_B={spec.f_b_hz:g}Hz phase={spec.phase} "
                f"order={','.join(map(str, spec.slot_order()))} exposure_s={t_e:.6g} "
                f"row_rate_hz={row_rate_hz:g} size={img.shape[1]}x{img.shape[0]}", err=True)
+
+
+def _render_capture(light, *, scene: str, size: str, row_rate_hz: float,
+                    exposure_s: float | None, ambient_ratio: float, coverage: float,
+                    gain: float | None, noise: bool, seed: int, downscale: float, rotate: int,
+                    rotate_exif: bool, jpeg_quality: int, subsampling: str):
+    """``synth capture``'s frame: (JPEG bytes, stored pixels, linear frame, camera, start)."""
+    import numpy as np
+
+    from lishield_guard.camera import CameraModel
+    from synth.camera import auto_exposure_s, encode_jpeg, postprocess, simulate_frame
+    from synth.dataset import parse_size
+    from synth.light import coverage_map
+    from synth.scene import load_scene
+
+    if rotate not in ROTATIONS:
+        raise fail(f"--rotate must be 0, 90, 180 or 270, got {rotate}")
+    if not 0.0 < coverage <= 1.0:
+        raise fail(f"--coverage must be in (0, 1], got {coverage}")
+    if not row_rate_hz > 0:
+        raise fail(f"--row-rate-hz must be > 0, got {row_rate_hz}")
+    n_rows, n_cols = parse_size(size)
+    rng = np.random.default_rng(seed)
+    refl = load_scene(scene, n_rows, n_cols)
+    cmap = None if coverage >= 1.0 else coverage_map(n_rows, n_cols, fraction=coverage)
+    t_e = exposure_s if exposure_s is not None else auto_exposure_s(
+        refl, ambient_ratio=ambient_ratio, coverage=cmap)
+    camera = CameraModel(row_time_s=1.0 / row_rate_hz, n_rows=n_rows, exposure_s=t_e)
+    start_s = float(rng.uniform(0.0, 1.0))
+    frame = simulate_frame(light, refl, camera, rng=rng, start_s=start_s,
+                           ambient_ratio=ambient_ratio, coverage=cmap, gain=gain, noise=noise)
+    img, orient = postprocess(frame, downscale=downscale, rotation_deg=rotate,
+                              rotation_mode="exif" if rotate_exif else "bake")
+    data = encode_jpeg(img, quality=jpeg_quality, subsampling=subsampling,
+                       exif_orientation=orient)
+    return data, img, frame, camera, start_s
+
+
+def _capture_light(preset: str, switching_hz: float | None, phase: str, order: str | None,
+                   loop_patterns: int, rise_s: float):
+    """The spec of ``synth capture``'s options and the LED playing its firmware sequence."""
+    import dataclasses
+
+    from firmware.sequence import compile_spec
+    from lishield_guard.spec import get_preset
+    from synth.dataset import EMITTER_ALLOW, LED_CLOCK_HZ
+    from synth.light import SequenceLight
+
+    if order is not None and order not in ("cyclic", "random"):
+        try:
+            order = tuple(int(i) for i in order.split(",") if i.strip())
+        except ValueError:
+            raise fail(f"--order must be cyclic or comma-separated tone indices, "
+                       f"got {order!r}") from None
+    spec = get_preset(preset)
+    if switching_hz is not None:
+        spec = dataclasses.replace(spec, switching_hz=switching_hz)
+    spec = dataclasses.replace(spec, phase=phase)
+    if order is not None:
+        spec = dataclasses.replace(spec, order=order)
+    light = SequenceLight(compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW,
+                                       n_patterns=loop_patterns), rise_s=rise_s)
+    return spec, light
 
 
 class Codec(StrEnum):
@@ -313,12 +329,12 @@ def video(
                         rotation_mode="bake" if rotate_pixels else "tag", scene=scene)
         data, rec = render_video_item(p)
     except LishieldError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_bytes(data)
     except OSError as exc:
-        raise _fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
+        raise fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
     typer.echo(json.dumps({"file": str(out), **rec}, sort_keys=True))
 
 
