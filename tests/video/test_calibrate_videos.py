@@ -51,5 +51,9 @@ def test_threshold_and_bound_follow_the_clips():
     tune_max = max(flag_threshold(c, vcfg) for c in clean)
     assert cal.threshold_logit <= tune_max + 0.01 and cal.flagged_tune == 0
     assert cal.n_tune + cal.n_cert == 200 and cal.far_bound < 0.05 and cal.met
+    held = [ClipScores(f"h{i}", (9.0,) * 8, (4, 4), 9.0) for i in range(3)]
+    both = calibrate_video(clean, vcfg, target_far=0.05, certify=held)
+    assert both.threshold_logit == cal.threshold_logit  # held-out clips never tune
+    assert both.n_cert == cal.n_cert + 3 and both.flagged_cert == cal.flagged_cert + 3
     with pytest.raises(ValueError):
         calibrate_video(clean[:5], vcfg)
