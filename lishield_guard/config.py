@@ -325,6 +325,9 @@ class FitConfig(_Group):
         of 4-6 at rho >= 0.94).
     min_gain_periodic : float or None
         The periodic path's gain; None: no periodic path.
+    matched_refit : bool
+        Refit the best fit on matched-filter block weights (blocks weighted by how much of the
+        fitted template they show: a partly lit frame's lit blocks count most).
     """
 
     min_rho: float = 0.9
@@ -334,6 +337,7 @@ class FitConfig(_Group):
     max_leak_rgb: float | None = 0.3
     min_rho_periodic: float = 0.85
     min_gain_periodic: float | None = 2.0
+    matched_refit: bool = True
 
     def __post_init__(self) -> None:
         for name in ("min_rho", "min_rho_rgb", "min_rho_periodic"):

@@ -68,7 +68,6 @@ SCAN_CYCLE_STEP = 1.015  # c_1 scanned on a geometric grid of this ratio over it
 SCAN_EXPOSURE_STEP_SLOTS = 0.1  # exposures scanned from 0 to M slots (e and e + M fit alike)
 SCAN_MIN_PHASES = 256  # phases per pattern period scanned (more when the template needs them)
 SCAN_HARMONICS_PER_CYCLE = 4  # template harmonics kept per cycle of the fastest tone per slot
-MATCHED_REFIT = True  # refit on matched-filter block weights (`_matched_refit`); calibration
 
 
 class _KnotMaker:
@@ -223,7 +222,8 @@ class _Objective:
 
 def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
            period_range_rows: tuple[float, float], scale_range_cpr_per_hz: tuple[float, float],
-           colour_blocks: dict[str, np.ndarray] | None = None) -> ModelFit | None:
+           colour_blocks: dict[str, np.ndarray] | None = None,
+           matched_refit: bool = True) -> ModelFit | None:
     """Refine grid starts of one spec channel with the exact model; fit the look-alike.
 
     Parameters
@@ -242,6 +242,8 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     colour_blocks : dict, optional
         ``"R"``, ``"G"``, ``"B"`` -> log contrast per column block of each colour plane (same
         rows); given, the fit's `chroma_leak` is measured (when rho reaches FIT_RHO_FLOOR).
+    matched_refit : bool
+        Refit on matched-filter block weights (`_matched_refit`; `FitConfig.matched_refit`).
 
     Returns
     -------
@@ -318,7 +320,7 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     if not rho > 0:
         return None
     blocks_hp = hp(blocks_lin)
-    if MATCHED_REFIT:
+    if matched_refit:
         rho, th, y = _matched_refit(blocks_lin, blocks_hp, hp, model, rho, th, y)
     p, c1, phi, e = th[:4]
     tr = hp(model.rows(th))

@@ -580,7 +580,8 @@ def _axis_sweeps(planes: dict[str, PlaneAnalysis], specs, det: DetectorConfig,
                 starts = [st for st in sm.starts if st[0] >= FIT_MIN_GRID_RHO]
                 mf = refine(blocks, spec, c, starts, period_range_rows=rng,
                             scale_range_cpr_per_hz=scale,
-                            colour_blocks=_colour_blocks(planes) if spec.is_rgb else None)
+                            colour_blocks=_colour_blocks(planes) if spec.is_rgb else None,
+                            matched_refit=det.fit.matched_refit)
                 entry = replace(entry, fit=mf)
             out[spec.name].append(entry)
             if stop is not None and stop(entry):

@@ -282,8 +282,7 @@ _RGB_HALF_LIT = {
 }
 
 
-def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
-    import lishield_guard.detector.fit as fit_mod
+def test_partly_lit_barcode_needs_the_matched_refit():
     from synth.dataset import render_item
 
     data, desc = render_item(_RGB_HALF_LIT)
@@ -292,8 +291,7 @@ def test_partly_lit_barcode_needs_the_matched_refit(monkeypatch):
     # accepts; held at 0.8 the grid cannot decide, and only the exact fit can
     det = cascade_config().detector.with_values({"sweep.min_rho": 0.8})
     assert detect_cascade(data, det).protected
-    monkeypatch.setattr(fit_mod, "MATCHED_REFIT", False)
-    assert not detect_cascade(data, det).protected
+    assert not detect_cascade(data, det.with_values({"fit.matched_refit": False})).protected
 
 
 # A PWM light (4.08 kHz, duty 0.66, depth 0.34) on the scikit-image moon photo, 1/770 s
