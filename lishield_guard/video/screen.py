@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -57,11 +57,9 @@ class FrameScore:
     undetermined: str | None = None
 
     def to_dict(self) -> dict:
-        """JSON-ready."""
-        return {"index": self.index, "time_s": round(self.time_s, 3),
-                "logit": None if self.undetermined else round(self.logit, 4),
-                "where": self.where, "keyframe": self.keyframe, "run": self.run,
-                "undetermined": self.undetermined}
+        """JSON-ready (the logit of an undetermined frame is None)."""
+        return dict(asdict(self), time_s=round(self.time_s, 3),
+                    logit=None if self.undetermined else round(self.logit, 4))
 
 
 @dataclass(frozen=True)
