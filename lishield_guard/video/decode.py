@@ -115,26 +115,41 @@ def _source_bytes(source, limits: VideoLimits) -> tuple[object, int]:
     return str(path), n
 
 
-def _rotation(container, stream) -> int:
-    """The clockwise display rotation of ``stream`` (0, 90, 180 or 270): the older ``rotate``
-    tag, else the display matrix of its first frame (FFmpeg reports it counter-clockwise).
-    Decoding that frame also shows that the stream decodes at all."""
+def _first_frame(container, stream) -> tuple[int, object]:
+    """The clip's first frame (decoded alone: it shows that the stream decodes at all, and the
+    screen reuses it) and the clockwise display rotation (0, 90, 180 or 270): the older
+    ``rotate`` tag, else the frame's display matrix (FFmpeg reports it counter-clockwise)."""
     import av
 
-    tag = stream.metadata.get("rotate")
-    if tag is not None:
-        try:
-            return int(round(float(tag) / 90.0)) * 90 % 360
-        except ValueError:
-            return 0
     try:
-        frame = next(iter(container.decode(stream)), None)
+        frame = _keyframe(container, stream)
     except av.FFmpegError as exc:
         raise CorruptVideoError(f"the video's first frame cannot be decoded: {exc}") from exc
     if frame is None:
         raise CorruptVideoError("the video stream has no frame")
-    container.seek(0, stream=stream, backward=True, any_frame=False)
-    return int(round(-float(frame.rotation or 0) / 90.0)) * 90 % 360
+    tag = stream.metadata.get("rotate")
+    try:
+        deg = float(tag) if tag is not None else -float(frame.rotation or 0)
+    except ValueError:
+        deg = 0.0
+    return int(round(deg / 90.0)) * 90 % 360, frame
+
+
+def _keyframe(container, stream):
+    """The frame of the next packet alone (a keyframe after a seek), or None: the packet is
+    decoded and the decoder drained at once, so the frames that follow it in decode order
+    (B-frames a reordering decoder would wait for) are not decoded. The decoder is left
+    flushed; the next decode must follow a seek."""
+    for packet in container.demux(stream):
+        if packet.dts is None:  # the demuxer's end-of-stream packet
+            return None
+        frames = [*stream.decode(packet), *stream.decode(None)]
+        stream.codec_context.flush_buffers()
+        if not frames:
+            return None
+        frames[0].time_base = stream.time_base  # what a demuxed decode sets
+        return frames[0]
+    return None
 
 
 def _check_truncated(stream, n_bytes: int) -> None:
@@ -151,14 +166,17 @@ def _check_truncated(stream, n_bytes: int) -> None:
 class VideoReader:
     """An opened video (see `open_video`): its `info` and `frames` to decode."""
 
-    def __init__(self, container, stream, info: VideoInfo, limits: VideoLimits) -> None:
+    def __init__(self, container, stream, info: VideoInfo, limits: VideoLimits,
+                 first_frame=None) -> None:
         self._container = container
+        self._first = first_frame  # decoded by open_video; the decoder is left drained
         self._stream = stream
         self.info = info
         self.limits = limits
         self.decoded_frames = 0  # frames the decoder produced, kept or not (the work done)
         self.budget_hit = False  # the decode budget (`max_decoded_frames`) stopped a decode
-        self._at_end = False
+        self._at_end = True  # the next decode seeks (open_video drained the decoder)
+        self.decoded_frames = 1 if first_frame is not None else 0
         frame_bytes = info.width * info.height * DECODED_BYTES_PER_PIXEL
         #: decode budget: `VideoLimits.max_decoded_frames`, fewer for frames so large that
         #: `VideoLimits.max_decoded_bytes` is reached first
@@ -202,14 +220,11 @@ class VideoReader:
         pos_s = -math.inf  # time of the last decoded frame
         fps = max(self.info.frame_rate_hz, 1e-3)
         for t in sorted(float(x) for x in times_s):
-            gap_frames = (t - pos_s) * fps
-            prev_key = max((k for k in self.info.keyframes_s if k <= t + 0.5 / fps),
-                           default=None)
-            if self._at_end or not (0 <= gap_frames and (prev_key is None or prev_key <= pos_s)):
-                self._at_end = False
-                self._container.seek(int((t + self._start) / self._tb), stream=self._stream,
-                                     backward=True, any_frame=False)
-            frame = self._decode_until(t, fps)
+            if self._first is not None and self._first.time is not None and \
+                    abs(self._first.time - self._start - t) < 0.5 / fps:
+                frame = self._first  # the first frame, decoded when the clip was opened
+            else:
+                frame = self._seek_and_decode(t, pos_s, fps)
             if frame is None:
                 return
             pos_s = float(frame.time) - self._start
@@ -218,6 +233,34 @@ class VideoReader:
                 frame.to_ndarray(format="rgb24")
             yield DecodedFrame(rgb=rgb, time_s=pos_s, index=int(round(pos_s * fps)),
                                keyframe=bool(frame.key_frame), row_scale=scale)
+
+    def _seek_and_decode(self, t: float, pos_s: float, fps: float):
+        """The frame at ``t``: seek to the keyframe before it unless decoding on from
+        ``pos_s`` is nearer; a target on a keyframe is decoded alone."""
+        gap_frames = (t - pos_s) * fps
+        prev_key = max((k for k in self.info.keyframes_s if k <= t + 0.5 / fps),
+                       default=None)
+        if self._at_end or not (0 <= gap_frames and (prev_key is None or prev_key <= pos_s)):
+            self._at_end = False
+            self._container.seek(int((t + self._start) / self._tb), stream=self._stream,
+                                 backward=True, any_frame=False)
+            at_key = prev_key is not None and abs(t - prev_key) < 0.5 / fps
+            if at_key and self.decoded_frames >= self.max_decoded_frames:
+                self.budget_hit = True
+                return None
+            frame = _keyframe(self._container, self._stream) if at_key else None
+            if frame is not None:  # the keyframe alone: the decoder was drained
+                self.decoded_frames += 1
+                self._at_end = True
+                if frame.time is None or frame.time - self._start < t - 0.5 / fps:
+                    # the index put a keyframe at t, the stream did not: decode up to t
+                    self._at_end = False
+                    self._container.seek(int((t + self._start) / self._tb),
+                                         stream=self._stream, backward=True, any_frame=False)
+                    frame = None
+        else:
+            frame = None
+        return frame or self._decode_until(t, fps)
 
     def _decode_until(self, t_s: float, fps: float):
         """The first frame at or after ``t_s``; the last frame when the stream ends first;
@@ -328,8 +371,11 @@ def _reader(container, n_bytes: int, limits: VideoLimits) -> VideoReader:
     _check_truncated(stream, n_bytes)
     start = float(stream.start_time or 0) * tb
     entries = stream.index_entries or ()
-    keys = tuple(sorted(float(e.timestamp) * tb - start for e in entries if e.is_keyframe))
+    keys = sorted(float(e.timestamp) * tb - start for e in entries if e.is_keyframe)
+    if keys and keys[0] < 0:  # index times are decode times: the first keyframe shows at 0
+        keys = [k - keys[0] for k in keys]
+    rotation, first = _first_frame(container, stream)
     info = VideoInfo(container=container.format.name, codec=codec, width=width, height=height,
                      frame_rate_hz=rate, duration_s=duration_s, n_frames=n_frames,
-                     rotation_deg=_rotation(container, stream), keyframes_s=keys, n_bytes=n_bytes)
-    return VideoReader(container, stream, info, limits)
+                     rotation_deg=rotation, keyframes_s=tuple(keys), n_bytes=n_bytes)
+    return VideoReader(container, stream, info, limits, first)

@@ -167,9 +167,9 @@ def plan_runs(info: VideoInfo, vcfg: VideoConfig) -> list[list[float]]:
 
     Candidates, in order: every keyframe of the container's index, visited spread out (a
     keyframe is intra coded: at low bitrates the frames after it copy most of it, stripes
-    included, so keyframes carry the most independent looks at the light); then the frame
-    after each keyframe, then the second after, and so on (a frame interval later the light
-    is at another phase of its cycle). A clip that lists no keyframes starts runs at
+    included, so keyframes carry the most independent looks at the light); then, keyframe by
+    keyframe in the same order, the `first_frames` frames after it (a frame interval later the
+    light is at another phase of its cycle; consecutive frames decode on from one seek). A clip that lists no keyframes starts runs at
     ``frame_stride_s`` multiples spread over it. Runs are `first_frames` consecutive
     candidates, each run decoded in time order.
     """
@@ -183,11 +183,13 @@ def plan_runs(info: VideoInfo, vcfg: VideoConfig) -> list[list[float]]:
         n = max(1, min(vcfg.max_frames, int(end / vcfg.frame_stride_s) + 1))
         keys = [end * i / n for i in range(n)]
     order = [keys[i] for i in _van_der_corput(len(keys))]
-    cand: list[float] = []
-    j = 0
-    while len(cand) < vcfg.max_frames and j * dt <= end:
-        cand += [k + j * dt for k in order if k + j * dt <= end]
-        j += 1
+    n = vcfg.first_frames
+    cand: list[float] = list(order)
+    block = 0
+    while len(cand) < vcfg.max_frames and block * n * dt <= end:
+        for k in order:  # the frames after each keyframe, consecutive: one seek per block
+            cand += [t for i in range(1, n + 1) if (t := k + (block * n + i) * dt) <= end]
+        block += 1
     cand = cand[:vcfg.max_frames]
     return [sorted(cand[i:i + vcfg.first_frames])
             for i in range(0, len(cand), vcfg.first_frames)]

@@ -190,12 +190,12 @@ def test_markov_bound_holds_on_dependent_frames():
 
 
 def test_frames_too_weak_alone_add_up_over_runs():
-    """A faint barcode (ambient light 30x the LED): the clip's first frame, screened as a
+    """A faint barcode (ambient light 29x the LED): the clip's first frame, screened as a
     photo, is clean, and so is the first run's evidence; the screen goes on, and the second
     run's frames (the light at other phases) flag the clip."""
     from lishield_guard import detect
 
-    data = _clip(seed=3, preset="table2-rgb", switching_hz=200.0, ambient_ratio=30.0,
+    data = _clip(seed=3, preset="table2-rgb", switching_hz=200.0, ambient_ratio=29.0,
                  exposure_s=1 / 4000)
     cfg = default_config()
     v = detect_video(data, cfg)
