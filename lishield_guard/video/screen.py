@@ -169,9 +169,9 @@ def plan_runs(info: VideoInfo, vcfg: VideoConfig) -> list[list[float]]:
     keyframe is intra coded: at low bitrates the frames after it copy most of it, stripes
     included, so keyframes carry the most independent looks at the light); then, keyframe by
     keyframe in the same order, the `first_frames` frames after it (a frame interval later the
-    light is at another phase of its cycle; consecutive frames decode on from one seek). A clip that lists no keyframes starts runs at
-    ``frame_stride_s`` multiples spread over it. Runs are `first_frames` consecutive
-    candidates, each run decoded in time order.
+    light is at another phase of its cycle; consecutive frames decode on from one seek). A
+    clip that lists no keyframes starts at ``frame_stride_s`` multiples spread over it. Runs
+    are `first_frames` consecutive candidates, each run decoded in time order.
     """
     dt = 1.0 / info.frame_rate_hz
     end = info.duration_s - 0.5 * dt

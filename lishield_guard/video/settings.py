@@ -80,7 +80,7 @@ class VideoConfig:
     first_frames: int = 4
     max_frames: int = 16
     min_frames: int = 2
-    threshold_logit: float = 4.0642  # the shipped calibration (data/default.toml)
+    threshold_logit: float = 4.3228  # the shipped calibration (data/default.toml)
     clear_logit: float = 1.0
     frame_stride_s: float = 0.1
     max_rows: int = 540
