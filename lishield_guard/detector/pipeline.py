@@ -170,18 +170,11 @@ def _detect_learned(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
     if decoded.row_scale > 1:
         skipped.append(f"full resolution: JPEG decoded at 1/{decoded.row_scale:g} scale in the "
                        f"DCT domain (stripes need rows, not pixels)")
-    model = decision_model(det)
-    unknown = [s.name for _, s in specs if not model.knows(s)]
-    why = ("no policy configured: nothing to look for" if not specs else
-           f"the decision model was not trained on any configured spec ({', '.join(unknown)}; "
-           f"it knows {', '.join(model.card.get('specs', ())) or 'none'}): use profile "
-           f"cascade, or retrain (make train)" if len(unknown) == len(specs) else None)
+    why, notes = learned_scope(config)
     if why is not None:  # the network cannot look for these barcodes: never "clean"
         return Verdict(False, None, 0, 1, evidence={"reason": why}, skipped=tuple(skipped),
                        timings_ms=timer.ms, profile="default", undetermined=why)
-    if unknown:
-        skipped.append(f"specs {', '.join(unknown)}: not in the decision model's training "
-                       f"(a clean verdict does not cover them; profile cascade does)")
+    skipped += notes
     with timer("measure"):
         pixels = decoded.rgb() if decoded.is_color else decoded.luma
         rec = measure(pixels, det)
@@ -199,6 +192,24 @@ def _detect_learned(decoded: Decoded, config: AppConfig, timer: _Timer) -> Verdi
                    matches=int(protected), required=1, evidence=evidence,
                    skipped=tuple(skipped), timings_ms=timer.ms, profile="default",
                    score=float(1.0 / (1.0 + math.exp(-min(max(rec.logit, -60.0), 60.0)))))
+
+
+def learned_scope(config: AppConfig) -> tuple[str | None, list[str]]:
+    """Why the learned decision cannot look for the configured specs (None when it can), and
+    notes on configured specs it was not trained on (a clean verdict does not cover them)."""
+    specs = [s for p in config.policies for s in p.specs]
+    model = decision_model(config.detector)
+    unknown = [s.name for s in specs if not model.knows(s)]
+    if not specs:
+        return "no policy configured: nothing to look for", []
+    if len(unknown) == len(specs):
+        return (f"the decision model was not trained on any configured spec "
+                f"({', '.join(unknown)}; it knows "
+                f"{', '.join(model.card.get('specs', ())) or 'none'}): use profile cascade, "
+                f"or retrain (make train)"), []
+    return None, ([f"specs {', '.join(unknown)}: not in the decision model's training (a "
+                   f"clean verdict does not cover them; profile cascade does)"] if unknown
+                  else [])
 
 
 def learned_evidence(rec: DecisionRecord, specs: list[tuple[str, BarcodeSpec]],

@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from lishield_guard.config import AppConfig
-from lishield_guard.detector.decision import DecisionRecord, decision_model, measure, window_label
-from lishield_guard.detector.pipeline import learned_evidence
+from lishield_guard.detector.decision import DecisionRecord, measure, window_label
+from lishield_guard.detector.pipeline import learned_evidence, learned_scope
 from lishield_guard.verdict import Verdict
 from lishield_guard.video.decode import VideoInfo, VideoReader, open_video
 from lishield_guard.video.settings import VideoConfig
@@ -250,21 +250,6 @@ def screen_video(reader: VideoReader, config: AppConfig, vcfg: VideoConfig,
                        checkpoints=tuple(checkpoints))
 
 
-def _scope(config: AppConfig) -> tuple[str | None, list[str]]:
-    """Why the learned decision cannot screen for the configured specs (None when it can)
-    and notes on specs it does not cover."""
-    specs = [s for p in config.policies for s in p.specs]
-    model = decision_model(config.detector)
-    unknown = [s.name for s in specs if not model.knows(s)]
-    if not specs:
-        return "no policy configured: nothing to look for", []
-    if len(unknown) == len(specs):
-        return (f"the decision model was not trained on any configured spec "
-                f"({', '.join(unknown)}): retrain (make train)"), []
-    return None, [f"specs {', '.join(unknown)}: not in the decision model's training (a clean "
-                  f"verdict does not cover them)"] if unknown else []
-
-
 def video_verdict(rec: VideoRecord, config: AppConfig, vcfg: VideoConfig,
                   timings: dict, skipped: list[str]) -> Verdict:
     """The clip's Verdict from its record: status by the stopping rule, the deciding frames,
@@ -347,7 +332,7 @@ def detect_video(source, config: AppConfig, vcfg: VideoConfig | None = None) -> 
     reader = open_video(source, vcfg.limits)
     timings["open"] = (time.perf_counter() - t0) * 1e3
     with reader:
-        why, skipped = _scope(config)
+        why, skipped = learned_scope(config)
         if config.detector.profile != "default":
             skipped.append(f"profile {config.detector.profile}: videos are screened with the "
                            f"default profile's learned decision")
