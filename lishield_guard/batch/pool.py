@@ -1,12 +1,13 @@
 """One pool runner for every batch tool: workers set up once, results as they arrive.
 
 `run_pool` runs ``fn`` on every item's work in worker processes (or in this process for one
-job). Each worker is initialised once: one BLAS thread, a watch on the parent (a killed batch
-leaves no worker behind) and the run's ``state`` (a config, a cache folder), which ``fn`` reads
-with `worker_state`. At most ``max_in_flight`` tasks are submitted at once, so a lazy item
-iterator is consumed lazily; a crashed worker fails only the tasks it took down (they come back
-as `WorkerCrashed`) and a fresh pool carries on; on an exception or Ctrl-C in the consumer the
-pending tasks are cancelled and the workers shut down.
+job, with one native thread while each item runs). Each worker is initialised once: one BLAS
+thread, a watch on the parent (a killed batch leaves no worker behind) and the run's
+``state`` (a config, a cache folder), which ``fn`` reads with `worker_state`. At most
+``max_in_flight`` tasks are submitted at once, so a lazy item iterator is consumed lazily; a
+crashed worker fails only the tasks it took down (they come back as `WorkerCrashed`) and a
+fresh pool carries on; on an exception or Ctrl-C in the consumer the pending tasks are
+cancelled and the workers shut down.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
-from lishield_guard.threads import one_thread_per_worker
+from lishield_guard.threads import native_threads, one_thread_per_worker
 
 __all__ = ["WorkerCrashed", "progress_bar", "run_pool", "worker_state"]
 
@@ -125,7 +126,12 @@ def run_pool(fn: Callable[[Any], Any], items: Iterable[T], *, jobs: int, state: 
         _STATE["state"] = state
         for item in items:
             w = work(item)
-            yield item, None if w is None else fn(w)
+            if w is None:
+                yield item, None
+                continue
+            with native_threads(1):  # this process is the one worker
+                result = fn(w)
+            yield item, result
         return
     yield from _run_processes(fn, items, jobs=jobs, state=state, work=work, ordered=ordered,
                               limit=max_in_flight or 4 * jobs, preload=preload)

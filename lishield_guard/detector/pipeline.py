@@ -59,6 +59,7 @@ from lishield_guard.detector.tones import match_spec, scale_range_cpr_per_hz
 from lishield_guard.detector.tracks import PlaneAnalysis, analyse_profiles
 from lishield_guard.detector.usable import full_scale_of, unusable_reason
 from lishield_guard.spec import BarcodeSpec
+from lishield_guard.threads import native_threads
 from lishield_guard.verdict import Verdict
 
 __all__ = ["AXIS_NAMES", "Evidence", "analyse_plane", "collect_evidence", "decide",
@@ -123,12 +124,18 @@ def detect(source, config: AppConfig | DetectorConfig | None = None) -> Verdict:
     ------
     ImageDecodeError, ImageTooLargeError, PayloadTooLargeError, InvalidImageError
         When the input cannot be turned into pixels.
+
+    Notes
+    -----
+    Runs with one native (BLAS, OpenCV) thread, or the process's own pin, restored after
+    the call (`lishield_guard.threads.native_threads`).
     """
     cfg = _resolve(config)
     timer = _Timer()
-    with timer("decode"):
-        decoded = decode_for(source, cfg)
-    return detect_decoded(decoded, cfg, _timer=timer)
+    with native_threads():
+        with timer("decode"):
+            decoded = decode_for(source, cfg)
+        return detect_decoded(decoded, cfg, _timer=timer)
 
 
 def decode_for(source, config: AppConfig) -> Decoded:

@@ -30,11 +30,14 @@ def is_video(source) -> bool:
 
 
 def detect_video(source, config=None, vcfg=None):
-    """`lishield_guard.video.screen.detect_video` (imported on first use)."""
+    """`lishield_guard.video.screen.detect_video` (imported on first use), with one native
+    thread or the process's own pin (`lishield_guard.threads.native_threads`)."""
     from lishield_guard.config import default_config
+    from lishield_guard.threads import native_threads
     from lishield_guard.video.screen import detect_video as _detect_video
 
-    return _detect_video(source, config or default_config(), vcfg)
+    with native_threads():
+        return _detect_video(source, config or default_config(), vcfg)
 
 
 def detect_media(source, config=None):
