@@ -76,6 +76,7 @@ __all__ = [
     "EMITTER_ALLOW",
     "EMITTER_FIELDS",
     "MIXES",
+    "EVAL_PHOTO_PACKAGES",
     "RESERVED_PHOTO_PACKAGES",
     "SIZES",
     "Mix",
@@ -147,6 +148,7 @@ class Mix:
     pwm_duty_range: tuple[float, float] = (0.1, 0.9)
     pwm_depth_range: tuple[float, float] = (0.2, 1.0)
     noise: bool = True
+    photo_packages: tuple[str, ...] = ()  # real-photo scenes only from these (empty: any)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -355,6 +357,8 @@ def sample_item(label: int, *, seed: int, mix: Mix, size: tuple[int, int]) -> di
             else "photo"
     p["scene_photo"] = None
     photos = real_photo_scenes() if mix.real_photo_prob > 0 else ()
+    if mix.photo_packages:
+        photos = packaged_photos(photos, tuple(mix.photo_packages))
     if p["scene_kind"] == "photo" and photos and rng.random() < mix.real_photo_prob:
         p["scene_kind"] = "real-photo"
         p["scene_photo"] = str(photos[int(rng.choice(len(photos), p=_photo_probs(photos)))])
@@ -470,6 +474,23 @@ RESERVED_PHOTO_PACKAGES = (
     "lomiri-wallpapers-20.04", "budgie-backgrounds", "mate-backgrounds",
     "plasma-workspace-wallpapers", "palapeli-data", "scikit-learn", "pywavelets", "mahotas",
     "imgaug")
+
+
+# Photo packages held out of the training scene bank (`training.scenes`): fresh evaluation
+# sets draw their scenes from these only (``--set photo_packages=...``), so the learned stage
+# is judged on photographs it never saw.
+EVAL_PHOTO_PACKAGES = ("hugin-data", "kphotoalbum", "forensics-samples-files", "libjxl-testdata")
+
+
+def packaged_photos(names: tuple[str, ...], packages: tuple[str, ...]) -> tuple[str, ...]:
+    """The real-photo scenes of ``names`` whose corpus package is one of ``packages``."""
+    from synth import scene
+
+    rows = _corpus_rows(names[0]) if names else None
+    if rows is None:
+        return ()
+    return tuple(n for n in names
+                 if str(rows[scene.parse_photo_scene(n)[1]].get("package")) in packages)
 
 
 def _reserved_photo(row: dict) -> bool:

@@ -17,6 +17,8 @@ __all__ = [
     "PwmLight",
     "SequenceLight",
     "SteadyLight",
+    "SumLight",
+    "SwitchedLight",
     "coverage_map",
     "light_to_rgb",
     "mean_rgb",
@@ -340,6 +342,60 @@ class SequenceLight:
         if self.rise_s > 0:
             return self._smoothed(t - self.phase_s) - self._smoothed(u0)
         return self._prim(t - self.phase_s) - self._prim(u0)
+
+
+@dataclass(frozen=True)
+class SumLight:
+    """Several lights at once (a barcode LED beside a PWM lamp, two dimmed lamps): their
+    intensities, and so their cumulative integrals, add; the sum is in image R, G, B.
+
+    Parameters
+    ----------
+    parts : tuple of LightSource
+        The lights; each may be white (``"W"``) or coloured.
+    """
+
+    parts: tuple
+    channels: tuple[str, ...] = IMAGE_CHANNELS
+
+    def cumulative(self, t_s) -> np.ndarray:
+        """Sum of the parts' exact integrals in R, G, B, shape ``t_s.shape + (3,)``."""
+        return sum(light_to_rgb(p.cumulative(t_s), tuple(p.channels)) for p in self.parts)
+
+    def mean_level(self) -> np.ndarray:
+        """Sum of the parts' time-averaged intensities in R, G, B, shape (3,)."""
+        return sum(mean_rgb(p) for p in self.parts)
+
+
+@dataclass(frozen=True)
+class SwitchedLight:
+    """A light that changes at ``switch_s``: ``before`` until then, ``after`` from then on (a
+    dimmer moved, a PWM driver changing duty or frequency mid-frame).
+
+    The time average is taken over the two parts equally (a normalised capture sees the
+    average light of a frame near the switch, not of one part only).
+    """
+
+    before: object
+    after: object
+    switch_s: float
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """Channel names of the parts (they must agree)."""
+        return tuple(self.before.channels)
+
+    def mean_level(self) -> np.ndarray:
+        """Mean of the parts' time-averaged intensities, shape (n_channels,)."""
+        return 0.5 * (np.asarray(self.before.mean_level()) + np.asarray(self.after.mean_level()))
+
+    def cumulative(self, t_s) -> np.ndarray:
+        """Exact integral from 0 to ``t_s``: ``before`` up to the switch, ``after`` past it."""
+        t = _as_time(t_s)
+        ts = np.asarray(self.switch_s, dtype=np.float64)
+        head = self.before.cumulative(np.minimum(t, ts))
+        tail = self.after.cumulative(np.maximum(t, ts)) - self.after.cumulative(ts)
+        return head + tail
 
 
 def row_means(light: LightSource, start_s, exposure_s: float) -> np.ndarray:

@@ -16,6 +16,7 @@ from lishield_guard.errors import ConfigError, ImageDecodeError, InvalidImageErr
 __all__ = [
     "DEFAULT_PHOTO_DIR",
     "PHOTO_NAMES",
+    "ALL_TEXTURE_KINDS",
     "TEXTURE_KINDS",
     "corpus_manifest",
     "corpus_photo",
@@ -35,6 +36,9 @@ PHOTO_NAMES = ("astronaut", "coffee", "chelsea", "rocket", "camera", "coins", "m
                "hubble_deep_field", "immunohistochemistry", "retina", "motorcycle", "grass",
                "gravel")
 TEXTURE_KINDS = ("blinds", "bricks", "fabric")
+#: Every kind `texture_scene` draws; ``"screen"`` (a display's fine scan lines) is left out of
+#: `TEXTURE_KINDS` so that datasets drawn from that tuple stay as they were.
+ALL_TEXTURE_KINDS = (*TEXTURE_KINDS, "screen")
 # Real-photo corpus written by scripts/fetch_photos.py (manifest.jsonl + images/).
 DEFAULT_PHOTO_DIR = Path("out/photos")
 PHOTOS_PREFIX = "photos:"
@@ -387,16 +391,16 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
 
     Parameters
     ----------
-    kind : {"blinds", "bricks", "fabric"}
-        Window blinds (soft square wave), brick courses with staggered joints, or a woven
-        fabric (two crossed gratings with fine thread noise).
+    kind : {"blinds", "bricks", "fabric", "screen"}
+        Window blinds (soft square wave), brick courses with staggered joints, a woven
+        fabric (two crossed gratings with fine thread noise), or a display's scan lines.
     n_rows, n_cols : int
         Sensor size in pixels.
     rng : numpy.random.Generator
         Draws the colours, phases and (if not given) period and orientation.
     period_px : float, optional
-        Spatial period in pixels; default log-uniform in [8, 120] px (blinds/bricks) or
-        [4, 30] px (fabric).
+        Spatial period in pixels; default log-uniform in [8, 120] px (blinds/bricks),
+        [4, 30] px (fabric) or [2, 6] px (screen).
     angle_deg : float, optional
         Orientation of the stripes' normal from the row axis, degrees; 0 gives horizontal
         stripes like an LED's. Default: half the time within 10 degrees of 0, else uniform.
@@ -407,10 +411,10 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
     params : dict
         JSON-ready parameters (kind, period_px, angle_deg).
     """
-    if kind not in TEXTURE_KINDS:
-        raise ConfigError(f"unknown texture {kind!r}; known: {', '.join(TEXTURE_KINDS)}")
+    if kind not in ALL_TEXTURE_KINDS:
+        raise ConfigError(f"unknown texture {kind!r}; known: {', '.join(ALL_TEXTURE_KINDS)}")
     if period_px is None:
-        lo, hi = (4.0, 30.0) if kind == "fabric" else (8.0, 120.0)
+        lo, hi = {"fabric": (4.0, 30.0), "screen": (2.0, 6.0)}.get(kind, (8.0, 120.0))
         period_px = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
     if angle_deg is None:
         angle_deg = float(rng.uniform(-10, 10) if rng.random() < 0.5 else rng.uniform(0, 180))
@@ -435,6 +439,10 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
         mortar = 0.08
         mask = ((frac_u > mortar) & (frac_v > mortar / brick_len)).astype(np.float32)
         col_b = np.full(3, rng.uniform(0.5, 0.8), dtype=np.float32)  # light mortar
+    elif kind == "screen":  # scan lines: bright rows, thin dark gaps, a slow image on top
+        frac = u - np.floor(u)
+        mask = np.clip((frac - 0.15) * period_px * 2, 0.0, 1.0) * (
+            0.6 + 0.4 * np.cos(2 * np.pi * v / rng.uniform(20, 80)) ** 2)
     else:  # fabric
         g1 = 0.5 + 0.5 * np.cos(2 * np.pi * u)
         g2 = 0.5 + 0.5 * np.cos(2 * np.pi * v * rng.uniform(0.8, 1.25))

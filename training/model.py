@@ -1,9 +1,10 @@
 """The decision network in PyTorch (training only); `export` writes the numpy inference's weights.
 
-Layers match `lishield_guard.detector.learned` exactly: four 'same' 1-D convolutions along log
-frequency (kernel `KERNEL`, dilations `DILATIONS`, ReLU), [max, mean] over frequency, a hidden
-dense layer with ReLU and one output logit per window; an image's logit is the maximum over its
-windows (multiple-instance learning: one lit window is enough).
+Layers match `lishield_guard.detector.learned` exactly: per instance (one axis at one pyramid
+level, `lishield_guard.detector.tfinput`), four 'same' 1-D convolutions along log frequency
+(kernel `KERNEL`, dilations `DILATIONS`, ReLU), [max, mean] over frequency, a hidden dense
+layer with ReLU and one logit; an image's logit is the maximum over its instances
+(multiple-instance learning: one level of one axis that shows the barcode is enough).
 """
 
 from __future__ import annotations
@@ -15,37 +16,39 @@ import numpy as np
 import torch
 from torch import nn
 
-from lishield_guard.detector.spectra import CHANNELS, INPUT_VERSION
+from lishield_guard.detector.tfinput import CHANNELS, INPUT_VERSION
 
-KERNEL = 7
+KERNEL = 5
 DILATIONS = (1, 2, 4, 8)
-WIDTHS = (16, 16, 24, 24)
+WIDTHS = (24, 24, 32, 32)
 HIDDEN = 32
 
 
 class DecisionNet(nn.Module):
-    """Window scorer; ``forward`` takes (batch, windows, channels, frequencies) -> (batch,
-    windows) logits."""
+    """Instance scorer; ``forward`` takes (batch, instances, channels, frequencies) and a
+    (batch, instances) mask of present instances -> (batch, instances) logits (absent ones
+    -inf)."""
 
     def __init__(self) -> None:
         super().__init__()
         layers = []
         c_in = len(CHANNELS)
         for width, d in zip(WIDTHS, DILATIONS, strict=True):
-            layers += [nn.Conv1d(c_in, width, KERNEL, dilation=d, padding=d * (KERNEL - 1) // 2),
-                       nn.ReLU()]
+            layers += [nn.Conv1d(c_in, width, KERNEL, dilation=d,
+                                 padding=d * (KERNEL - 1) // 2), nn.ReLU()]
             c_in = width
         self.convs = nn.Sequential(*layers)
         self.hidden = nn.Linear(2 * c_in, HIDDEN)
         self.out = nn.Linear(HIDDEN, 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Logit of every window."""
-        b, w, c, f = x.shape
-        h = self.convs(x.reshape(b * w, c, f))
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Logit of every instance."""
+        b, n, c, f = x.shape
+        h = self.convs(x.reshape(b * n, c, f))
         h = torch.cat([h.amax(dim=2), h.mean(dim=2)], dim=1)
         h = torch.relu(self.hidden(h))
-        return self.out(h).reshape(b, w)
+        z = self.out(h).reshape(b, n)
+        return z.masked_fill(~mask, float("-inf"))
 
 
 def export(net: DecisionNet, weights: str | Path, card: dict) -> None:

@@ -63,6 +63,8 @@ CHANNELS = ("coh_R", "coh_G", "coh_B", "coh_L", "inc_R", "inc_G", "inc_B", "inc_
 AXIS_NAMES = {0: "rows", 1: "columns"}
 _LOG_CLIP = (-6.0, 14.0)  # ln(whitened power) is clipped to this range (unitless)
 _EPS_POWER = 1e-9  # floor added to every power: an exactly flat window has no spectrum
+USABLE_TILES = 8  # row ranges per block judged apart (`usable.usable_blocks`): a lamp in a
+#                   dark room lights a few rows of blocks that are black on average
 
 
 @dataclass(frozen=True)
@@ -292,9 +294,12 @@ def axes_input(profiles: dict[int, np.ndarray], *, full_scale: float,
     return SpectralInput(x, tuple(names), tuple(windows), n_lines, tuple(skipped))
 
 
-def analysable(pixels: np.ndarray, axes: tuple[int, ...] = (0, 1)) -> dict:
+def analysable(pixels: np.ndarray, axes: tuple[int, ...] = (0, 1), *, tiles: int = 1) -> dict:
     """The profiles of every axis of an image that is large enough, and which of their blocks
     can show stripes.
+
+    ``tiles``: row ranges per block judged apart by `usable.usable_blocks` (`USABLE_TILES`
+    for the time-frequency decision: a lamp lighting a few rows of a dark room).
 
     Returns
     -------
@@ -312,7 +317,7 @@ def analysable(pixels: np.ndarray, axes: tuple[int, ...] = (0, 1)) -> dict:
     profiles = block_profiles_rgb(pixels, axes=ok) if ok else {}
     keep, notes = {}, {}
     for a, p in profiles.items():
-        keep[a], notes[a] = usable_blocks(p.mean(axis=0), full_scale=full)
+        keep[a], notes[a] = usable_blocks(p.mean(axis=0), full_scale=full, tiles=tiles)
     return {"skipped": skipped, "profiles": profiles, "keep": keep, "notes": notes,
             "full_scale": full}
 

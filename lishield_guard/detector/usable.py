@@ -45,7 +45,8 @@ def full_scale_of(plane: np.ndarray) -> float:
     return top if top > 0 else 1.0
 
 
-def usable_blocks(profiles: np.ndarray, *, full_scale: float) -> tuple[np.ndarray, list[str]]:
+def usable_blocks(profiles: np.ndarray, *, full_scale: float, tiles: int = 1
+                  ) -> tuple[np.ndarray, list[str]]:
     """Which column blocks' row profiles can carry stripes, and why the others cannot.
 
     Parameters
@@ -54,6 +55,10 @@ def usable_blocks(profiles: np.ndarray, *, full_scale: float) -> tuple[np.ndarra
         Row means per column block (`profiles.block_row_profiles`), pixel units.
     full_scale : float
         Pixel value of white (`full_scale_of`), > 0.
+    tiles : int
+        Row ranges per block judged apart (>= 1): a block is black or saturated only when
+        every one of its tiles is, so a lamp that lights a few rows of a dark room keeps its
+        blocks (the learned decision uses 8; the cascade 1).
 
     Returns
     -------
@@ -69,9 +74,16 @@ def usable_blocks(profiles: np.ndarray, *, full_scale: float) -> tuple[np.ndarra
     >>> keep.tolist(), notes
     ([False, False, False], ['3 saturated column block(s)'])
     """
+    n = profiles.shape[1]
+    k = max(1, min(int(tiles), n))
+    edges = np.linspace(0, n, k + 1).round().astype(int)
+    tile_means = np.add.reduceat(profiles, edges[:-1], axis=1) / np.diff(edges)
+    lit = (tile_means >= BLACK_FRACTION * full_scale) & \
+        (tile_means <= SATURATED_FRACTION * full_scale)
     means = profiles.mean(axis=1)
-    black = means < BLACK_FRACTION * full_scale
-    saturated = means > SATURATED_FRACTION * full_scale
+    black = ~lit.any(axis=1) & (means < BLACK_FRACTION * full_scale) if k > 1 else \
+        means < BLACK_FRACTION * full_scale
+    saturated = ~lit.any(axis=1) & ~black if k > 1 else means > SATURATED_FRACTION * full_scale
     spread = profiles.max(axis=1) - profiles.min(axis=1)
     flat = spread <= FLAT_FRACTION * max(full_scale, 1e-12)
     keep = ~(black | saturated | flat)
