@@ -25,11 +25,13 @@ from lishield_guard.errors import (
     ImageTooLargeError,
     InvalidImageError,
     PayloadTooLargeError,
+    SpecialFileError,
     UnsupportedImageError,
+    input_file_error,
 )
 
-__all__ = ["Decoded", "check_budget", "decode", "jpeg_scale", "read_regular_file",
-           "validate_image"]
+__all__ = ["Decoded", "archive_kind", "check_budget", "decode", "jpeg_scale",
+           "read_regular_file", "validate_image"]
 
 ImageFile.LOAD_TRUNCATED_IMAGES = False
 # Pillow's own bomb check fires inside Image.open and surfaces as "unidentified image"; the
@@ -193,10 +195,37 @@ def _open(data: bytes) -> Image.Image:
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ImageTooLargeError(f"image declares too many pixels: {exc}") from exc
     except UnidentifiedImageError as exc:
+        archive = archive_kind(data)
+        if archive:
+            raise UnsupportedImageError(
+                f"a {archive} archive, not an image or a video: `lishield-guard scan` reads "
+                f"the images and clips inside archives") from exc
         raise UnsupportedImageError("not an image, or an image format that is not supported"
                                     " (JPEG, PNG, TIFF, WebP, BMP, GIF, HEIC/HEIF are)") from exc
     except (OSError, ValueError, SyntaxError) as exc:
         raise CorruptImageError(f"cannot read image header: {exc}") from exc
+
+
+def archive_kind(data: bytes) -> str | None:
+    """``"ZIP"`` or ``"tar"`` when ``data`` is an archive `lishield-guard scan` reads (by the
+    standard library's own tests), else None.
+
+    Examples
+    --------
+    >>> archive_kind(b"PK\\x05\\x06" + bytes(18)), archive_kind(b"\\xff\\xd8\\xff")
+    ('ZIP', None)
+    """
+    import tarfile
+    import zipfile
+
+    try:
+        if zipfile.is_zipfile(io.BytesIO(data)):
+            return "ZIP"
+        if tarfile.is_tarfile(io.BytesIO(data)):
+            return "tar"
+    except Exception:  # noqa: BLE001 - only a hint for a message: never fail here
+        return None
+    return None
 
 
 def jpeg_scale(n_rows: int, min_rows: int) -> int:
@@ -279,8 +308,10 @@ def _decode_fast_jpeg(data: bytes, *, want_rgb: bool, min_rows: int):
     """libjpeg-turbo decode that refuses truncated or corrupt data (None: let Pillow try).
 
     A file that lacks only its final EOI marker is tolerated; extraneous bytes before a
-    marker (a warning many cameras trigger) are tolerated; any other corruption, including a
-    premature end of the entropy-coded data that libjpeg would fill with grey, raises.
+    marker (a warning many cameras trigger) are tolerated, and where libjpeg-turbo cannot
+    read past them (a broken marker in the header), Pillow decides; any other corruption,
+    including a premature end of the entropy-coded data that libjpeg would fill with grey,
+    raises.
     """
     try:
         return _simplejpeg(data, want_rgb=want_rgb, min_rows=min_rows)
@@ -290,8 +321,11 @@ def _decode_fast_jpeg(data: bytes, *, want_rgb: bool, min_rows: int):
         import simplejpeg
 
         space = "RGB" if want_rgb else "GRAY"
-        return simplejpeg.decode_jpeg(data, colorspace=space, min_height=min_rows,
-                                      strict=False)
+        try:
+            return simplejpeg.decode_jpeg(data, colorspace=space, min_height=min_rows,
+                                          strict=False)
+        except ValueError:  # libjpeg-turbo stops at them in a header: Pillow decides
+            return None
     if not _corrupt_jpeg(msg):
         return None  # CMYK, arithmetic coding, ...: Pillow decides
     if not _jpeg_complete(data):
@@ -431,8 +465,12 @@ def read_regular_file(path: str | Path, *, max_bytes: int) -> bytes:
 
     Raises
     ------
-    UnsupportedImageError
-        Not a regular file, or unreadable.
+    InputNotFoundError
+        No such file, or a link whose target is gone (``not_found``).
+    SpecialFileError
+        A FIFO, device, socket or folder (``special_member``).
+    InputFileError
+        Unreadable: permissions, a loop of links, an I/O error (``read_error``).
     PayloadTooLargeError
         More than ``max_bytes`` bytes.
     """
@@ -441,19 +479,21 @@ def read_regular_file(path: str | Path, *, max_bytes: int) -> bytes:
     try:
         fd = os.open(path, flags)
     except OSError as exc:
-        raise UnsupportedImageError(f"cannot read {shown!r}: {exc.strerror}") from exc
+        raise input_file_error(exc, shown) from exc
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise UnsupportedImageError(f"cannot read {shown!r}: not a regular file")
+            raise SpecialFileError(f"cannot read {shown!r}: not a regular file")
         if st.st_size > max_bytes:
             raise PayloadTooLargeError(f"file has {st.st_size} bytes > max_bytes={max_bytes}")
         if hasattr(os, "set_blocking"):
             os.set_blocking(fd, True)
         with os.fdopen(fd, "rb", closefd=False) as fh:
             data = fh.read(max_bytes + 1)
+    except SpecialFileError:
+        raise
     except OSError as exc:
-        raise UnsupportedImageError(f"cannot read {shown!r}: {exc.strerror}") from exc
+        raise input_file_error(exc, shown) from exc
     finally:
         os.close(fd)
     if len(data) > max_bytes:

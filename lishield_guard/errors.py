@@ -12,6 +12,9 @@
     │   └── CorruptImageError(ImageDecodeError)       truncated or corrupt data of a known format
     ├── ImageTooLargeError(LishieldError)             too many pixels (decompression bomb cap)
     ├── PayloadTooLargeError(LishieldError)           too many bytes
+    ├── InputFileError(LishieldError, OSError)        an input file that cannot be read
+    │   ├── InputNotFoundError(.., FileNotFoundError) no such file (or a dangling link)
+    │   └── SpecialFileError(InputFileError)          a FIFO, device, socket or folder
     └── FirmwareError(LishieldError, ValueError)      a sequence cannot be compiled or read back
 
 Every error carries a stable ``code`` string (used verbatim by the HTTP service and the scan
@@ -19,7 +22,9 @@ records), so callers never parse messages. `ERROR_CODES` is the one table of eve
 any interface reports: its HTTP status(es), the CLI exit status it leads to, and its meaning.
 The service's statuses and code enum, the scanner's record codes, the CLI's exit statuses, the
 README's exit-status table and docs/service.md's code table are all read from it
-(`exit_status_table_markdown`, `error_code_table_markdown`).
+(`exit_status_table_markdown`, `error_code_table_markdown`). `classify` is the one mapping
+from any exception to its code and message, used by ``detect``, ``scan`` and the service
+alike (the Python API raises the typed errors themselves).
 """
 
 from __future__ import annotations
@@ -38,16 +43,21 @@ __all__ = [
     "ErrorCodeInfo",
     "FirmwareError",
     "ImageDecodeError",
+    "InputFileError",
+    "InputNotFoundError",
     "ImageTooLargeError",
     "InvalidImageError",
     "LishieldError",
     "PayloadTooLargeError",
     "SpecError",
+    "SpecialFileError",
     "UnsupportedImageError",
     "VideoTooLongError",
+    "classify",
     "error_code",
     "error_code_table_markdown",
     "exit_status_table_markdown",
+    "input_file_error",
 ]
 
 
@@ -137,6 +147,38 @@ class VideoTooLongError(LishieldError):
     code = "video_too_long"
 
 
+class InputFileError(LishieldError, OSError):
+    """An input file that cannot be read (permissions, a loop of links, an I/O error)."""
+
+    code = "read_error"
+
+
+class InputNotFoundError(InputFileError, FileNotFoundError):
+    """No input file at the path (or a link whose target is gone)."""
+
+    code = "not_found"
+
+
+class SpecialFileError(InputFileError):
+    """The path is a FIFO, a device, a socket or a folder: never read as an image."""
+
+    code = "special_member"
+
+
+def input_file_error(exc: OSError, shown: str) -> InputFileError:
+    """The typed error of an `OSError` met opening or reading input file ``shown``.
+
+    Examples
+    --------
+    >>> input_file_error(FileNotFoundError(2, "No such file or directory"), "x.jpg").code
+    'not_found'
+    >>> str(input_file_error(OSError(40, "Too many levels of symbolic links"), "loop.jpg"))
+    "cannot read 'loop.jpg': Too many levels of symbolic links"
+    """
+    cls = InputNotFoundError if isinstance(exc, FileNotFoundError) else InputFileError
+    return cls(f"cannot read {shown!r}: {exc.strerror or exc}")
+
+
 class FirmwareError(LishieldError, ValueError):
     """A firmware sequence cannot be compiled within tolerance, or a file cannot be read back."""
 
@@ -206,12 +248,13 @@ ERROR_CODES: tuple[ErrorCodeInfo, ...] = (
     _e("invalid_config", (), _USE, "core", "a bad config file, detector setting or policy"),
     _e("invalid_spec", (), _USE, "core", "a barcode spec breaks a validation rule"),
     _e("firmware_error", (), _USE, "core", "a sequence cannot be compiled or read back"),
-    _e("not_found", (404,), _IN, "scan", "no such input file (HTTP: no such route)"),
-    _e("read_error", (), _IN, "scan", "an input file that cannot be read"),
+    _e("not_found", (404,), _IN, "core", "no such input file (HTTP: no such route)"),
+    _e("read_error", (), _IN, "core",
+       "an input file that cannot be read (permissions, a loop of links, an I/O error)"),
     _e("unsafe_member_name", (), _IN, "scan",
        "an archive member with an absolute or escaping name"),
     _e("link_member", (), _IN, "scan", "an archive member that is a link"),
-    _e("special_member", (), _IN, "scan", "a device, fifo or other non-regular file or member"),
+    _e("special_member", (), _IN, "core", "a device, fifo or other non-regular file or member"),
     _e("encrypted_member", (), _IN, "scan", "an encrypted archive member"),
     _e("corrupt_member", (), _IN, "scan", "an archive member that cannot be read"),
     _e("unreadable_archive", (), _IN, "scan", "an archive that cannot be opened"),
@@ -276,3 +319,37 @@ def error_code_table_markdown() -> str:
         exit_status = "-" if e.exit_status is None else str(e.exit_status)
         rows.append(f"| `{e.code}` | {http} | {exit_status} | {e.meaning} |")
     return "\n".join(rows) + "\n"
+
+
+def classify(exc: BaseException) -> tuple[str, str]:
+    """The stable code and the message of any exception, as every interface reports it.
+
+    A `LishieldError` keeps its own ``code``; an `OSError` that escaped a reader is
+    ``not_found`` or ``read_error`` (as `input_file_error` would have typed it); anything
+    else is a bug, ``internal_error``, with the exception's type in the message.
+
+    Parameters
+    ----------
+    exc : BaseException
+        What a detection raised.
+
+    Returns
+    -------
+    code : str
+        An entry of `ERROR_CODES`.
+    message : str
+        For people.
+
+    Examples
+    --------
+    >>> classify(EmptyImageError("empty input: no image bytes"))
+    ('empty_body', 'empty input: no image bytes')
+    >>> classify(KeyError("x"))
+    ('internal_error', "internal error: KeyError: 'x'")
+    """
+    if isinstance(exc, LishieldError):
+        return exc.code, str(exc)
+    if isinstance(exc, OSError):
+        typed = input_file_error(exc, str(exc.filename) if exc.filename else "input")
+        return typed.code, str(typed)
+    return "internal_error", f"internal error: {type(exc).__name__}: {exc}"

@@ -42,7 +42,7 @@ from lishield_guard.batch.listing import (  # noqa: F401 - re-exported: the scan
 from lishield_guard.batch.pool import WorkerCrashed, run_pool, worker_state
 from lishield_guard.batch.types import IMAGE_SUFFIXES, is_image_bytes  # noqa: F401
 from lishield_guard.config import AppConfig
-from lishield_guard.errors import LishieldError
+from lishield_guard.errors import classify
 from lishield_guard.threads import one_thread_per_worker
 
 __all__ = [
@@ -95,7 +95,8 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
     `lishield_guard.video.detect_video`) and return the verdict fields of a record.
 
     Never raises for a bad image: every exception becomes ``error`` plus a stable ``code``
-    (the LishieldError code, or ``"internal_error"`` for a bug).
+    (`lishield_guard.errors.classify`: the LishieldError code, or ``"internal_error"`` for a
+    bug).
 
     Returns
     -------
@@ -120,10 +121,8 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
                                "undetermined_reason": v.undetermined,
                                "reason": _printable(str(reason or v.undetermined or "")) or None,
                                "skipped": [_printable(str(s)) for s in v.skipped]}
-    except LishieldError as exc:
-        out = _error_fields(str(exc), exc.code)
     except Exception as exc:  # noqa: BLE001 - one bad file never stops a scan
-        out = _error_fields(f"{type(exc).__name__}: {exc}", CODE_INTERNAL)
+        out = _error_fields(*reversed(classify(exc)))  # the mapping detect and HTTP use
     out["elapsed_ms"] = round((time.perf_counter() - t0) * 1e3, 3)
     return out
 

@@ -1,4 +1,8 @@
-"""The one place where errors become HTTP statuses and ``{"code", "message"}`` JSON bodies."""
+"""The one place where errors become HTTP statuses and ``{"code", "message"}`` JSON bodies.
+
+Detection errors take their code from `lishield_guard.errors.classify`, the mapping ``detect``
+and ``scan`` use too, and their status from the code table (`ERROR_CODES`).
+"""
 
 from __future__ import annotations
 
@@ -11,35 +15,14 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
-from lishield_guard.errors import (
-    ERROR_CODES,
-    ConfigError,
-    CorruptVideoError,
-    EmptyImageError,
-    ImageDecodeError,
-    ImageTooLargeError,
-    InvalidImageError,
-    LishieldError,
-    PayloadTooLargeError,
-    UnsupportedImageError,
-    VideoTooLongError,
-    error_code,
-)
+from lishield_guard.errors import ERROR_CODES, ConfigError, LishieldError, classify, error_code
 
-__all__ = ["CLIENT_CLOSED_REQUEST", "STATUS_BY_ERROR", "ErrorCode", "ServiceError", "describe",
+__all__ = ["CLIENT_CLOSED_REQUEST", "ErrorCode", "ServiceError", "describe",
            "install_error_handlers"]
 
 log = logging.getLogger("lishield_guard.service")
 
-# Core error -> HTTP status, read from the one code table (`lishield_guard.errors.ERROR_CODES`);
-# looked up along the exception's MRO, most specific first. ConfigError is deliberately absent:
-# config is loaded at startup, so one at request time is a bug and becomes a 500
-# ``internal_error``.
-STATUS_BY_ERROR: dict[type[LishieldError], int] = {
-    cls: error_code(cls.code).http_statuses[0]
-    for cls in (EmptyImageError, UnsupportedImageError, ImageDecodeError, ImageTooLargeError,
-                PayloadTooLargeError, InvalidImageError, CorruptVideoError, VideoTooLongError)
-}
+# A ConfigError at request time is a bug (config is loaded at startup): 500 ``internal_error``.
 
 _HTTP_CODES = {400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found",
                405: "method_not_allowed", 406: "not_acceptable", 413: "payload_too_large",
@@ -100,9 +83,10 @@ def describe(exc: BaseException) -> tuple[int, str, str, dict[str, str]]:
         return (CLIENT_CLOSED_REQUEST, ErrorCode.client_disconnected.value,
                 "the client closed the connection before its request was read", {})
     if isinstance(exc, LishieldError) and not isinstance(exc, ConfigError):
-        for cls in type(exc).__mro__:
-            if cls in STATUS_BY_ERROR:
-                return STATUS_BY_ERROR[cls], exc.code, str(exc), {}
+        code, message = classify(exc)
+        statuses = error_code(code).http_statuses
+        if statuses:  # codes without one (files, config) cannot come from an upload: a bug
+            return statuses[0], code, message, {}
     if isinstance(exc, RequestValidationError):
         fields = "; ".join(f"{'.'.join(str(p) for p in e.get('loc', ()))}: {e.get('msg', '')}"
                            for e in exc.errors())

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lishield_guard.batch.types import KINDS, SNIFF_BYTES, MediaKind, kind_of_bytes, kind_of_name
+from lishield_guard.errors import input_file_error
+from lishield_guard.files import read_head
 
 __all__ = [
     "ARCHIVE_SUFFIXES",
@@ -174,12 +176,11 @@ def _file_item(path: str) -> ScanItem:
     label, esc = escape_name(path)
     try:
         st = os.stat(path)
-    except FileNotFoundError:
-        return ScanItem(label, f"{_printable(os.path.abspath(path))}|missing", None, None,
-                        "no such file", CODE_NOT_FOUND, esc)
-    except OSError as exc:
-        return ScanItem(label, f"{_printable(os.path.abspath(path))}|unreadable", None, None,
-                        f"cannot stat: {exc.strerror}", CODE_READ_ERROR, esc)
+    except OSError as exc:  # the code and message `detect` and the Python API give
+        err = input_file_error(exc, label)
+        state = "missing" if err.code == CODE_NOT_FOUND else "unreadable"
+        return ScanItem(label, f"{_printable(os.path.abspath(path))}|{state}", None, None,
+                        str(err), err.code, esc)
     if not stat.S_ISREG(st.st_mode):
         return ScanItem(label, _file_key(path, st), None, None,
                         f"skipped: not a regular file ({_kind(st.st_mode)}; never read)",
@@ -197,20 +198,10 @@ def _kind(mode: int) -> str:
 
 
 def _sniff_file(path: str, sel: _Selector) -> bool:
-    """Whether a regular file's first bytes are a signature ``sel`` reads (non-blocking open)."""
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError:
-        return True  # let the scan record why it cannot be read
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return True  # recorded as special
-        return sel.wanted_bytes(os.read(fd, SNIFF_BYTES))
-    except OSError:
-        return True
-    finally:
-        os.close(fd)
+    """Whether a regular file's first bytes are a signature ``sel`` reads (non-blocking open);
+    True for what cannot be read or is not a regular file, so that the scan records why."""
+    head = read_head(path, SNIFF_BYTES)
+    return True if head is None else sel.wanted_bytes(head)
 
 
 def _member_label(base: str, base_esc: bool, name: str) -> tuple[str, bool]:

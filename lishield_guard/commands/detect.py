@@ -70,7 +70,9 @@ def _describe(v, label: str, *, explain: bool) -> str:
     else:
         lines.append(f"{label}: clean, not protected (no policy barcode found)")
     stage = ev.get("stage")
-    if stage == "video":
+    if status == "undetermined":  # nothing was measured, so there is nothing to count
+        counts = "none (the detector could not look)"
+    elif stage == "video":
         vid = ev.get("video", {})
         counts = (f"clip logit {ev.get('logit')} {'>=' if v.protected else '<'} threshold "
                   f"{ev.get('threshold_logit'):.3g} over {vid.get('frames_screened')} frames")
@@ -157,8 +159,11 @@ def _explain_best(best: dict | None) -> list[str]:
         return [f"  best spec: {best.get('spec')}  (nothing fitted: "
                 f"{best.get('stage') or 'no tones'})"]
     rate = best.get("row_rate_hz_if_not_resized")
-    lines = [f"  best spec: {best.get('spec')}  scale: {sigma:.4g} cycles/row per Hz"
-             + (f" (row rate {rate:,.0f} Hz if not resized)" if rate else "")]
+    source = {"sweep": "the sweep's fitted period"}.get(best.get("row_rate_from"),
+                                                       "the tone scale")
+    lines = [f"  best spec: {best.get('spec')}"
+             + (f"  row rate {rate:,.0f} Hz if not resized (from {source})" if rate else ""),
+             f"    tone scale: {sigma:.4g} cycles/row per Hz"]
     for ch, hz in (best.get("matched_hz") or {}).items():
         tones = ", ".join(f"{f:g} Hz ({f * sigma:.4f} c/row)" for f in hz) or "none"
         lines.append(f"    {ch}: matched {tones}")
@@ -201,6 +206,13 @@ def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path
     return _plot(source, verdict, config, out_png)
 
 
+PLOT_HELP = ("Write the figure of what decided the verdict: the network's logit for every "
+             "window, the deciding window's spectrum with the tones of the spec that explains "
+             "it best, and that window's row profile (the cascade profile: the fitted rows "
+             "with the template and the look-alike; a clip: the deciding frame above the "
+             "per-frame scores). With several images: a folder, one IMG-stem.png each (the "
+             "folders too where stems repeat).")
+
 PROFILE_HELP = ("default: the calibrated learned decision, fixed cost per image (use this). "
                 "cascade: the pattern search, better on white (monochrome) LEDs but seconds per "
                 "striped photo. paper: the paper's Algorithm 1 as published, a reference that "
@@ -216,11 +228,13 @@ def _exit_code(verdict) -> ExitCode:
     return ExitCode.CLEAN
 
 
-def _input_error(label: str, message: str, code: str) -> ExitCode:
-    """Print an input's error line with its stable code; its exit status from the one table
+def _input_error(label: str, exc: BaseException) -> ExitCode:
+    """Print an input's error line with its stable code (`lishield_guard.errors.classify`,
+    the mapping scan and the service use too); its exit status from the one table
     (`lishield_guard.errors.ERROR_CODES`)."""
-    from lishield_guard.errors import EXIT_INPUT_ERROR, error_code
+    from lishield_guard.errors import EXIT_INPUT_ERROR, classify, error_code
 
+    code, message = classify(exc)
     typer.echo(f"error: {label}: {message} [{code}]", err=True)
     try:
         status = error_code(code).exit_status
@@ -229,17 +243,46 @@ def _input_error(label: str, message: str, code: str) -> ExitCode:
     return ExitCode(status if status is not None else EXIT_INPUT_ERROR)
 
 
-def _plot_path(plot: Path, label: str, several: bool) -> Path:
-    if not several:
-        return plot
-    plot.mkdir(parents=True, exist_ok=True)
-    return plot / f"{Path(label).stem}.png"
+def plot_names(images: list[str]) -> list[str]:
+    """The figure's file name of each image when several go to one ``--plot`` folder: its
+    stem, or where stems collide (``a/x.jpg``, ``b/x.jpg``) the fewest folders (then the
+    suffix) that tell the images apart, so that no figure is written over another; the same
+    path given twice gets ``-2``.
+
+    Examples
+    --------
+    >>> plot_names(["a/x.jpg", "b/x.jpg", "y.png", "-"])
+    ['a_x.png', 'b_x.png', 'y.png', 'stdin.png']
+    >>> plot_names(["x.jpg", "x.png", "x.jpg"])
+    ['x.jpg.png', 'x.png.png', 'x.jpg-2.png']
+    """
+    def parts(image: str) -> list[str]:
+        if image == "-":
+            return ["stdin"]
+        return [q for q in Path(image).parts if q not in ("/", "..", ".")] or ["image"]
+
+    def name(full: list[str], depth: int, suffix: bool) -> str:
+        tail = full[-depth:]
+        return "_".join([*tail[:-1], tail[-1] if suffix else Path(tail[-1]).stem])
+
+    paths = [parts(image) for image in images]
+    chosen = []
+    for full in paths:
+        options = [(d, k) for k in (False, True) for d in range(1, len(full) + 1)]
+        depth, suffix = next(((d, k) for d, k in options if sum(
+            name(o, d, k) == name(full, d, k) for o in paths) == 1), options[-1])
+        chosen.append(name(full, depth, suffix))
+    out = []
+    for i, n in enumerate(chosen):
+        taken = chosen[:i].count(n)
+        out.append(f"{n}-{taken + 1}.png" if taken else f"{n}.png")
+    return out
 
 
 def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
-                plot: Path | None, several: bool) -> ExitCode:
-    """Detect on one image (a path, or - for stdin), print its verdict (and write its plot);
-    its exit code."""
+                plot: Path | None) -> ExitCode:
+    """Detect on one image (a path, or - for stdin), print its verdict (and write its plot
+    to ``plot``); its exit code."""
     from lishield_guard.video import detect_media
 
     if image == "-":
@@ -247,23 +290,18 @@ def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
         label = "<stdin>"
     else:
         source, label = image, image
-    if image != "-" and not Path(image).exists():  # an input error, as in scan records
-        return _input_error(label, "no such file", "not_found")
-    try:
+    try:  # a missing or unreadable file is a typed error of the reader, as in scan records
         verdict = detect_media(source, cfg)
         if explain and verdict.protected and (verdict.evidence or {}).get("stage") == "learned":
             verdict = _with_physics(verdict, source, cfg)
-    except LishieldError as exc:
-        return _input_error(label, str(exc), exc.code)  # never clean
-    except Exception as exc:  # noqa: BLE001 - a bug, but still no traceback for the user
-        return _input_error(label, f"internal error: {type(exc).__name__}: {exc}",
-                            "internal_error")
+    except Exception as exc:  # noqa: BLE001 - never clean; a bug still prints no traceback
+        return _input_error(label, exc)
     if as_json:
         typer.echo(json.dumps({"path": label, **verdict.to_dict()}))
     else:
         typer.echo(_describe(verdict, label, explain=explain))
     if plot is not None:
-        out = _plot_path(plot, label, several)
+        out = plot
         try:
             plot_verdict(source, verdict, cfg, out)
         except OSError as exc:
@@ -282,16 +320,16 @@ def detect_command(
     explain: Annotated[bool, typer.Option("--explain", help="Also print the evidence: fitted "
                                           "parameters, tones, every candidate.")] = False,
     plot: Annotated[Path | None, typer.Option(
-        "--plot", metavar="FILE.png|DIR",
-        help="Write the figure of what decided the verdict: fitted rows with the template and "
-             "the look-alike, thresholds, spectrum. With several images: a folder, one "
-             "IMG-stem.png each.")] = None,
+        "--plot", metavar="FILE.png|DIR", help=PLOT_HELP)] = None,
     config: Annotated[Path | None, typer.Option(
         "--config", metavar="FILE.toml", help="Config (default: the shipped one).")] = None,
     profile: Annotated[Profile | None, typer.Option(
         "--profile", help=PROFILE_HELP, show_default=False)] = None,
     as_json: Annotated[bool, typer.Option(
         "--json", help="Print one JSON object per image (Verdict.to_dict() plus path).")] = False,
+    threads: Annotated[int, typer.Option(
+        "--threads", min=1, help="Native (BLAS, OpenCV) threads. One is fastest for one image "
+        "at a time, above all on a busy machine.")] = 1,
 ) -> None:
     """Decide whether images or video clips carry a policy barcode; print the verdict and why.
 
@@ -309,18 +347,26 @@ def detect_command(
       lishield-guard detect photo.jpg --explain --plot verdict.png
       lishield-guard detect clip.mp4 --explain
     """
+    from lishield_guard.threads import pin_native_threads
+
     try:
         cfg = resolve_config(config, profile)
     except LishieldError as exc:
         raise fail(str(exc)) from None
+    pin_native_threads(threads)
     if "-" in images and len(images) > 1:
         raise fail("- (stdin) reads one image; give files instead, or pipe one image")
     for image in images:
         if image != "-" and Path(image).is_dir():
             raise fail(f"{image!r} is a folder; scan folders and archives with "
                         f"`lishield-guard scan {image}`")
-    codes = [_detect_one(image, cfg, explain=explain, as_json=as_json, plot=plot,
-                         several=len(images) > 1) for image in images]
+    if plot is not None and len(images) > 1:
+        plot.mkdir(parents=True, exist_ok=True)
+        outs: list[Path | None] = [plot / n for n in plot_names(images)]
+    else:
+        outs = [plot] * len(images)
+    codes = [_detect_one(image, cfg, explain=explain, as_json=as_json, plot=out)
+             for image, out in zip(images, outs, strict=True)]
     # protected wins over errors; an input error or an undetermined image is never clean
     if ExitCode.PROTECTED in codes:
         raise typer.Exit(int(ExitCode.PROTECTED))

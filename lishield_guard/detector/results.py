@@ -297,11 +297,23 @@ class SpecMatch:
             return 0.0
         return float(min(1.0, self.n_matched / self.required) * min(1.0, self.purity))
 
+    @property
+    def row_rate(self) -> tuple[float | None, str]:
+        """``(row rate in Hz as if the image was not resized, what it came from)``: the
+        period sweep's fitted period (``"sweep"``) when the sweep or its exact fit decided,
+        else the tones' common scale, 1 / ``sigma_cpr_per_hz`` (``"tones"``). The two are
+        separate estimates and can differ (a partial tone match); the evidence reports the
+        deciding stage's."""
+        sweep = self.sweep
+        if self.stage in (Stage.SWEEP, Stage.EXACT_FIT) and sweep and sweep.match.row_rate_hz:
+            return float(sweep.match.row_rate_hz), "sweep"
+        return (1.0 / self.sigma_cpr_per_hz if self.sigma_cpr_per_hz > 0 else None), "tones"
+
     def to_dict(self) -> dict:
         """JSON-ready form for Verdict.evidence."""
+        rate, rate_from = self.row_rate
         return {"spec": self.spec, "sigma_cpr_per_hz": self.sigma_cpr_per_hz,
-                "row_rate_hz_if_not_resized": (1.0 / self.sigma_cpr_per_hz
-                                               if self.sigma_cpr_per_hz > 0 else None),
+                "row_rate_hz_if_not_resized": rate, "row_rate_from": rate_from,
                 "occupancy": {c: [float(o) for o in v] for c, v in self.occupancy.items()},
                 "matched_hz": self.matched, "n_matched": self.n_matched,
                 "required": self.required, "purity": float(self.purity),

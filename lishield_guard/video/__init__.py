@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from lishield_guard.files import read_head
 from lishield_guard.video.decode import VIDEO_SUFFIXES, is_video_bytes
 
 __all__ = ["VIDEO_SUFFIXES", "detect_media", "detect_video", "is_video", "is_video_bytes"]
@@ -17,15 +18,14 @@ __all__ = ["VIDEO_SUFFIXES", "detect_media", "detect_video", "is_video", "is_vid
 
 def is_video(source) -> bool:
     """Whether ``source`` (bytes, or a path) is a video: by its first bytes, or for a path
-    whose bytes cannot be read here, by its name."""
+    whose bytes cannot be read here (missing, a FIFO: never opened blocking), by its name."""
     if isinstance(source, bytes | bytearray | memoryview):
         return is_video_bytes(bytes(source[:32]))
     if isinstance(source, str | os.PathLike):
-        try:
-            with open(source, "rb") as fh:
-                return is_video_bytes(fh.read(32))
-        except OSError:
+        head = read_head(source, 32)
+        if head is None:
             return Path(os.fspath(source)).suffix.lower() in VIDEO_SUFFIXES
+        return is_video_bytes(head)
     return False
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,13 +27,15 @@ from lishield_guard.errors import (
     EmptyImageError,
     ImageTooLargeError,
     PayloadTooLargeError,
+    SpecialFileError,
     UnsupportedImageError,
     VideoTooLongError,
+    input_file_error,
 )
 from lishield_guard.video.settings import VideoLimits
 
-__all__ = ["VIDEO_SUFFIXES", "DecodedFrame", "VideoInfo", "VideoReader", "is_video_bytes",
-           "open_video"]
+__all__ = ["VIDEO_SUFFIXES", "DecodedFrame", "VideoInfo", "VideoReader", "ffmpeg_reason",
+           "is_video_bytes", "open_video"]
 
 DECODED_BYTES_PER_PIXEL = 1.5  # a decoded YUV 4:2:0 frame (what the decoder writes)
 
@@ -105,14 +108,33 @@ def _source_bytes(source, limits: VideoLimits) -> tuple[object, int]:
         return io.BytesIO(bytes(source)), n
     path = Path(os.fspath(source))
     try:
-        n = path.stat().st_size
+        st = path.stat()
     except OSError as exc:
-        raise UnsupportedImageError(f"cannot read {path}: {exc.strerror or exc}") from exc
+        raise input_file_error(exc, str(path)) from exc
+    if not stat.S_ISREG(st.st_mode):
+        raise SpecialFileError(f"cannot read {str(path)!r}: not a regular file")
+    n = st.st_size
     if n == 0:
         raise EmptyImageError(f"empty video: {path} has no bytes")
     if n > limits.max_bytes:
         raise PayloadTooLargeError(f"{path}: {n} bytes exceeds max_bytes={limits.max_bytes}")
     return str(path), n
+
+
+def ffmpeg_reason(exc: BaseException) -> str:
+    """FFmpeg's words for an error, without the errno tag and the ``'<none>'`` file name PyAV
+    adds (``[Errno 1094995529] Invalid data found when processing input: '<none>'`` becomes
+    ``Invalid data found when processing input``).
+
+    Examples
+    --------
+    >>> ffmpeg_reason(OSError(1094995529, "Invalid data found when processing input", "<none>"))
+    'Invalid data found when processing input'
+    >>> ffmpeg_reason(ValueError("odd"))
+    'odd'
+    """
+    words = getattr(exc, "strerror", None)
+    return str(words) if words else str(exc)
 
 
 def _first_frame(container, stream) -> tuple[int, object]:
@@ -124,7 +146,8 @@ def _first_frame(container, stream) -> tuple[int, object]:
     try:
         frame = _keyframe(container, stream)
     except av.FFmpegError as exc:
-        raise CorruptVideoError(f"the video's first frame cannot be decoded: {exc}") from exc
+        raise CorruptVideoError(f"the video's first frame cannot be decoded: "
+                                f"{ffmpeg_reason(exc)}") from exc
     if frame is None:
         raise CorruptVideoError("the video stream has no frame")
     tag = stream.metadata.get("rotate")
@@ -281,7 +304,7 @@ class VideoReader:
             pass
         except av.FFmpegError as exc:
             raise CorruptVideoError(f"video stream cannot be decoded near {t_s:.2f} s: "
-                                    f"{exc}") from exc
+                                    f"{ffmpeg_reason(exc)}") from exc
         self._at_end = True
         return last
 
@@ -316,10 +339,11 @@ def open_video(source, limits: VideoLimits | None = None) -> VideoReader:
         container = av.open(src, mode="r", metadata_errors="ignore")
     except av.InvalidDataError as exc:
         if is_video_bytes(head):
-            raise CorruptVideoError(f"broken or truncated video container: {exc}") from exc
-        raise UnsupportedImageError(f"not a video FFmpeg reads: {exc}") from exc
+            raise CorruptVideoError(f"broken or truncated video container: "
+                                    f"{ffmpeg_reason(exc)}") from exc
+        raise UnsupportedImageError(f"not a video FFmpeg reads: {ffmpeg_reason(exc)}") from exc
     except (av.FFmpegError, OSError) as exc:
-        raise UnsupportedImageError(f"cannot open video: {exc}") from exc
+        raise UnsupportedImageError(f"cannot open video: {ffmpeg_reason(exc)}") from exc
     try:
         if "image" in container.format.name or container.format.name.endswith("_pipe"):
             raise UnsupportedImageError(f"a still image ({container.format.name}), not a video")
@@ -340,10 +364,15 @@ def _head(path: str) -> bytes:
 
 
 def _reader(container, n_bytes: int, limits: VideoLimits) -> VideoReader:
+    if not container.streams:  # a clip cut before its index (an MP4's moov at the end)
+        raise CorruptVideoError("the container lists no stream: cut short before its index, "
+                                "or broken")
     if not container.streams.video:
         raise UnsupportedImageError("no video stream in the container")
     stream = container.streams.video[0]
     cc = stream.codec_context
+    if cc is None:  # FFmpeg found no codec for the stream (e.g. a broken sample entry)
+        raise UnsupportedImageError("no decoder for the video stream's codec")
     codec = cc.name
     if cc.codec is None or not cc.codec.is_decoder:
         raise UnsupportedImageError(f"no decoder for video codec {codec!r}")

@@ -17,6 +17,7 @@ from lishield_guard import (
     InvalidImageError,
     Limits,
     PayloadTooLargeError,
+    SpecialFileError,
     UnsupportedImageError,
     decode,
     detect,
@@ -248,12 +249,13 @@ def test_fifo_and_device_paths_are_refused_without_reading(tmp_path):
     os.mkfifo(fifo)
     out = []
     t = threading.Thread(target=lambda: out.append(pytest.raises(
-        UnsupportedImageError, decode, str(fifo))), daemon=True)
+        SpecialFileError, decode, str(fifo))), daemon=True)
     t.start()
     t.join(10)
     assert not t.is_alive(), "decoding a FIFO blocked"
     assert "not a regular file" in str(out[0].value)
-    with pytest.raises(UnsupportedImageError, match="not a regular file"):
+    assert out[0].value.code == "special_member"  # the code scan records for a FIFO
+    with pytest.raises(SpecialFileError, match="not a regular file"):
         decode("/dev/zero")
 
 

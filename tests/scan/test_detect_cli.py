@@ -163,3 +163,89 @@ def test_the_figure_states_the_thresholds_of_each_path():
     grid = {"rho": 0.75, "rho_lookalike": 0.4, "coherence_t": 12.0}
     assert "grid rho 0.750  (needs >= 0.7)" in _threshold_lines("period-sweep grid fit", grid,
                                                                  det, v)[0]
+
+
+# ------------------------------------------------------------------ issue 41: traps and contradictions
+
+def _help_words(text: str) -> str:
+    """Help text as words: Rich's box and line breaks removed."""
+    return " ".join(text.replace("│", " ").split())
+
+
+def test_same_stems_plot_to_distinct_files(tmp_path, run_cli, monkeypatch):
+    """``detect a/x.jpg b/x.jpg --plot DIR`` wrote one x.png over the other."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = write_images(tmp_path / "a", ["x.jpg"])[0]
+    b = write_images(tmp_path / "b", ["x.jpg"], seed=1)[0]
+    v = Verdict(False, None, 0, 2, evidence={"reason": "0 tone(s) found, 2 needed"})
+    monkeypatch.setattr(detect_mod, "detect", lambda source, config=None: v)
+    res = run_cli("detect", a, b, "--plot", tmp_path / "figs")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == ["a_x.png", "b_x.png"]
+
+
+def test_undetermined_prints_no_tone_count(tmp_path, run_cli):
+    """The default profile has no tones to require: an undetermined verdict printed
+    "matches: 0/1 tones required"."""
+    from PIL import Image
+
+    tiny = tmp_path / "tiny.png"
+    Image.new("L", (64, 48), 128).save(tiny)
+    res = run_cli("detect", tiny)
+    assert res.exit_code == 3 and "UNDETERMINED" in res.output
+    assert "tones required" not in res.output
+    assert "matches: none (the detector could not look)" in res.output
+
+
+def test_explain_states_one_row_rate(tmp_path, run_cli, monkeypatch):
+    """`--explain` printed the tones' row rate (1 / scale) as the best spec's while the sweep
+    that decided reported another ("85,412 Hz" and "row_rate_hz_if_not_resized 61408")."""
+    import re
+
+    from lishield_guard.detector.results import SpecMatch, Stage, SweepMatch, SweepResult
+
+    sweep = SweepResult(SweepMatch("table2-rgb", 0.79, 0.43, 902.3, 1.96, 0.1, 83.7, 1.2,
+                                   switching_hz=204.2, row_rate_hz=61408.3), "R", "0-1-2")
+    best = SpecMatch("table2-rgb", 1.1708e-05, {"R": [0.0, 0.4]}, {"R": [600.0], "G": [1400.0]},
+                     2, 2, 0.5, 0, True, "pattern fits", sweep=sweep, stage=Stage.SWEEP)
+    assert best.to_dict()["row_rate_hz_if_not_resized"] == 61408.3
+    v = Verdict(True, "no-distribution", 1, 1, evidence={
+        "reason": "pattern fits", "stage": "sweep", "best": best.to_dict(), "candidates": []},
+        profile="cascade", score=0.79)
+    monkeypatch.setattr(detect_mod, "detect", lambda source, config=None: v)
+    (img,) = write_images(tmp_path, ["a.jpg"])
+    res = run_cli("detect", img, "--explain", "--profile", "cascade")
+    rates = {float(r.replace(",", "")) for r in re.findall(
+        r"row rate ([\d,.]+) Hz|row_rate_hz_if_not_resized ([\d.]+)", res.output) for r in r if r}
+    assert rates == {61408.0}, res.output
+    assert "from the sweep's fitted period" in res.output
+
+
+def test_an_archive_given_to_detect_points_to_scan(tmp_path, run_cli):
+    import zipfile
+
+    import pytest
+
+    import lishield_guard
+
+    (img,) = write_images(tmp_path, ["a.jpg"])
+    archive = tmp_path / "photos.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.write(img, "a.jpg")
+    res = run_cli("detect", archive)
+    assert res.exit_code == 3 and "[unsupported_media_type]" in res.output
+    assert "`lishield-guard scan` reads" in res.output and "ZIP archive" in res.output
+    with pytest.raises(lishield_guard.UnsupportedImageError, match="lishield-guard scan"):
+        detect_mod.detect(archive.read_bytes())  # the Python API (not patched here)
+
+
+def test_plot_help_describes_the_figure_drawn_now(run_cli):
+    """`detect --plot`'s help described the cascade's old figure (fitted rows, template,
+    look-alike) as what every verdict gets."""
+    from lishield_guard.figure_learned import learned_caption
+
+    words = _help_words(run_cli("detect", "--help").output)
+    assert "the network's logit for every window" in words
+    assert "row profile" in words and "row profile" in learned_caption(Verdict(
+        False, None, 0, 1, evidence={"stage": "learned"}))

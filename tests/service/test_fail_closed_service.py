@@ -197,8 +197,9 @@ def test_error_code_is_an_enum_in_the_schema():
     for cls in vars(errors).values():
         if isinstance(cls, type) and issubclass(cls, errors.LishieldError) and \
                 cls.__module__ == errors.__name__ and not issubclass(cls, errors.ConfigError) \
+                and not issubclass(cls, errors.InputFileError) \
                 and cls not in (errors.LishieldError, errors.FirmwareError):
-            assert cls.code in enum, cls
+            assert cls.code in enum, cls  # (the service reads no files: no InputFileError)
 
 
 def test_metrics_security_is_declared_as_enforced():
