@@ -81,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     import uvicorn
 
     from service.app import create_app
+    from service.protocol import UVICORN_HTTP
     from service.settings import ServiceSettings
     from synth import demo_images
 
@@ -94,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  curl -s -F file=@{protected} {base}/v1/screen/plot -o verdict.png")
     print(f"  open {base}/review in a browser and drop an image\n", flush=True)
     server = uvicorn.Server(uvicorn.Config(create_app(ServiceSettings()), host=host, port=port,
-                                           access_log=False, log_level="warning"))
+                                           access_log=False, log_level="warning",
+                                           http=UVICORN_HTTP))
     threading.Thread(target=_screen_both, args=(server, base, [protected, clean]),
                      daemon=True).start()
     server.run()

@@ -49,7 +49,30 @@ class BodyBudget:
                 self.held_bytes -= n
 
 
-def too_large(n_bytes: int | str, cap_bytes: int, *, what: str = "request body") -> ServiceError:
-    """413 ``payload_too_large``: ``what`` has ``n_bytes`` bytes > ``cap_bytes``."""
-    return ServiceError(413, PayloadTooLargeError.code,
-                        f"{what} has {n_bytes} bytes > limit of {cap_bytes} bytes")
+def too_large(n_bytes: int | None, cap_bytes: int, *, setting: str,
+              what: str = "request body") -> ServiceError:
+    """413 ``payload_too_large``: ``what`` has ``n_bytes`` bytes, past the setting ``setting``.
+
+    Parameters
+    ----------
+    n_bytes : int or None
+        The size, in bytes; None when the body was cut off once past the cap (its size is
+        unknown then).
+    cap_bytes : int
+        The cap, in bytes.
+    setting : str
+        The `ServiceSettings` field(s) that set the cap (``"max_batch_bytes"``,
+        ``"max_upload_bytes + multipart_overhead_bytes"``): the message names them and their
+        environment variables, so the operator knows what to raise.
+
+    Examples
+    --------
+    >>> err = too_large(None, 1024, setting="max_batch_bytes")
+    >>> print(err.message)  # doctest: +NORMALIZE_WHITESPACE
+    request body has more than 1024 bytes: the limit is max_batch_bytes = 1024 bytes
+    (LISHIELD_MAX_BATCH_BYTES)
+    """
+    size = f"more than {cap_bytes} bytes" if n_bytes is None else f"{n_bytes} bytes"
+    env = " + ".join(f"LISHIELD_{name.strip().upper()}" for name in setting.split("+"))
+    return ServiceError(413, PayloadTooLargeError.code, f"{what} has {size}: the limit is "
+                        f"{setting} = {cap_bytes} bytes ({env})")

@@ -22,7 +22,7 @@ __all__ = ["MULTIPART", "Media", "empty_body", "media_of", "read_body", "read_fo
 MULTIPART = "multipart/form-data"
 
 
-async def read_body(request: Request, cap_bytes: int) -> bytes:
+async def read_body(request: Request, cap_bytes: int, *, setting: str) -> bytes:
     """Read the request body, refusing it as soon as it exceeds ``cap_bytes``.
 
     The bytes held count against the service's `BodyBudget` until `release_body`, and the
@@ -34,6 +34,8 @@ async def read_body(request: Request, cap_bytes: int) -> bytes:
         The incoming request; a ``Content-Length`` above the cap is refused before reading.
     cap_bytes : int
         Largest body accepted, in bytes.
+    setting : str
+        The settings that make ``cap_bytes``, named by the 413 (`service.limits.too_large`).
 
     Returns
     -------
@@ -55,7 +57,7 @@ async def read_body(request: Request, cap_bytes: int) -> bytes:
         if not declared.isdigit():
             raise ServiceError(400, "invalid_request", f"bad Content-Length {declared!r}")
         if int(declared) > cap_bytes:
-            raise too_large(declared, cap_bytes)
+            raise too_large(int(declared), cap_bytes, setting=setting)
         if budget is not None:
             budget.take(request, int(declared))
     timeout_s = svc.settings.body_timeout_s
@@ -69,7 +71,7 @@ async def read_body(request: Request, cap_bytes: int) -> bytes:
                 n += len(chunk)
                 request.state.bytes_received = n
                 if n > cap_bytes:
-                    raise too_large(f"more than {cap_bytes}", cap_bytes)
+                    raise too_large(None, cap_bytes, setting=setting)
                 if budget is not None and declared is None:
                     budget.take(request, len(chunk))
                 chunks.append(chunk)
@@ -87,7 +89,8 @@ def release_body(request: Request) -> None:
         budget.give_back(request)
 
 
-async def read_form(request: Request, cap_bytes: int, *, max_files: int) -> FormData:
+async def read_form(request: Request, cap_bytes: int, *, setting: str, max_files: int
+                    ) -> FormData:
     """Read a multipart body under ``cap_bytes`` (while streaming), then parse it.
 
     Raises
@@ -96,7 +99,7 @@ async def read_form(request: Request, cap_bytes: int, *, max_files: int) -> Form
         413 ``payload_too_large`` past the cap; 400 ``invalid_multipart`` when the multipart
         framing is broken or holds more than ``max_files`` files.
     """
-    body = await read_body(request, cap_bytes)
+    body = await read_body(request, cap_bytes, setting=setting)
     sent = False
 
     async def replay() -> dict:
@@ -148,15 +151,15 @@ def media_of(data: bytes, settings: ServiceSettings) -> Media:
     kind = VIDEO if VIDEO.sniff(data[:SNIFF_BYTES]) else IMAGE
     name, cap = settings.upload_cap(kind.name)
     if len(data) > cap:
-        raise too_large(len(data), cap, what=f"{kind.name} ({name})")
+        raise too_large(len(data), cap, setting=name, what=f"the {kind.name}")
     return Media(data, kind)
 
 
-async def upload_bytes(upload: UploadFile, cap_bytes: int) -> bytes:
-    """Bytes of one multipart file part, at most ``cap_bytes``."""
+async def upload_bytes(upload: UploadFile, cap_bytes: int, *, setting: str) -> bytes:
+    """Bytes of one multipart file part, at most ``cap_bytes`` (set by ``setting``)."""
     data = await upload.read(cap_bytes + 1)
     if len(data) > cap_bytes:
-        raise too_large(f"more than {cap_bytes}", cap_bytes, what="file")
+        raise too_large(None, cap_bytes, setting=setting, what="the file")
     if not data:
         raise empty_body()
     return data
@@ -171,9 +174,10 @@ async def read_media(request: Request, settings: ServiceSettings) -> Media:
     svc: ServiceState = request.app.state.service
     if svc.pool.full():  # refuse before receiving megabytes that could not be screened
         raise svc.pool.overloaded()
-    cap = settings.max_media_bytes
+    name, cap = settings.media_cap()
     if request.headers.get("content-type", "").lower().startswith(MULTIPART):
-        form = await read_form(request, cap + settings.multipart_overhead_bytes, max_files=1)
+        form = await read_form(request, cap + settings.multipart_overhead_bytes,
+                               setting=f"{name} + multipart_overhead_bytes", max_files=1)
         try:
             upload = form.get("file")
             if upload is None:
@@ -182,7 +186,7 @@ async def read_media(request: Request, settings: ServiceSettings) -> Media:
             if not isinstance(upload, UploadFile):
                 raise ServiceError(422, "invalid_request", "multipart field 'file' must be a "
                                    "file part (with a filename)")
-            return media_of(await upload_bytes(upload, cap), settings)
+            return media_of(await upload_bytes(upload, cap, setting=name), settings)
         finally:
             await form.close()
-    return media_of(await read_body(request, cap), settings)
+    return media_of(await read_body(request, cap, setting=name), settings)

@@ -116,3 +116,7 @@ class ServiceSettings(BaseSettings):
     def max_media_bytes(self) -> int:
         """The larger upload cap: how much of a body is read before its kind is known."""
         return max(self.max_upload_bytes, self.max_video_upload_bytes)
+
+    def media_cap(self) -> tuple[str, int]:
+        """``(setting name, bytes)`` of `max_media_bytes`: the larger upload cap."""
+        return max(self.upload_cap("image"), self.upload_cap("video"), key=lambda c: c[1])

@@ -61,6 +61,7 @@ def serve(
 
     from lishield_guard.errors import ConfigError
     from service.app import create_app
+    from service.protocol import UVICORN_HTTP
     from service.settings import ServiceSettings
 
     busy = _port_busy(host, port)
@@ -81,7 +82,7 @@ def serve(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(ExitCode.USAGE) from None
     common = {"host": host, "port": port, "access_log": False, "log_level": "info",
-              "timeout_graceful_shutdown": 10}
+              "timeout_graceful_shutdown": 10, "http": UVICORN_HTTP}
     if workers > 1:  # each process builds its own app from the environment set above
         del app
         uvicorn.run("service.app:create_app", factory=True, workers=workers, **common)

@@ -96,7 +96,8 @@ async def _batch_entry(request: Request, svc: ServiceState, index: int, part: Up
     """One file of a batch screened: its verdict, or its own error entry."""
     entry = BatchEntry(index=index, filename=part.filename, status=200)
     try:
-        media = media_of(await upload_bytes(part, svc.settings.max_media_bytes), svc.settings)
+        name, cap = svc.settings.media_cap()
+        media = media_of(await upload_bytes(part, cap, setting=name), svc.settings)
         verdict = await svc.pool.detect(media.data, kind=media.kind.name, request=request)
         entry.result = _result(request, svc, verdict, explain, record=False)
     except ClientDisconnect:
@@ -124,7 +125,8 @@ async def screen_batch(request: Request, explain: bool = _EXPLAIN,
     if svc.pool.full():
         raise svc.pool.overloaded()
     try:
-        form = await read_form(request, s.max_batch_bytes, max_files=s.max_batch_files + 1)
+        form = await read_form(request, s.max_batch_bytes, setting="max_batch_bytes",
+                               max_files=s.max_batch_files + 1)
     except BaseException:
         release_body(request)
         raise

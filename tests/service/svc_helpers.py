@@ -20,6 +20,7 @@ import uvicorn
 from PIL import Image
 
 from service.app import create_app
+from service.protocol import UVICORN_HTTP
 from service.settings import ServiceSettings
 
 # Small enough that limit tests stay fast, large enough for the 1080p demo JPEGs.
@@ -49,7 +50,8 @@ def live_server(settings: ServiceSettings, **app_kwargs) -> Iterator[LiveServer]
     sock.bind(("127.0.0.1", 0))
     port = sock.getsockname()[1]
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False,
-                                           lifespan="on", timeout_graceful_shutdown=2))
+                                           lifespan="on", timeout_graceful_shutdown=2,
+                                           http=UVICORN_HTTP))
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
     deadline = time.monotonic() + 30

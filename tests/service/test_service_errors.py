@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 
 import pytest
@@ -271,3 +272,72 @@ def test_hostile_inputs_are_counted_by_code_and_never_500(demo_pair):
         assert metric_value(text, "lishield_http_requests_total", outcome=outcome,
                             **screen) == 0.0
     assert 'outcome="internal_error"' not in text and 'outcome="http_500"' not in text
+
+
+# ------------------------------------------------------------------ issue 41: 413s and parse errors
+
+@pytest.fixture(scope="module")
+def small_caps():
+    """A server with tiny caps (thread isolation, no warm-up: no detection is run)."""
+    settings = make_settings(max_upload_bytes=1000, max_video_upload_bytes=2000,
+                             multipart_overhead_bytes=100, max_batch_bytes=3000,
+                             detect_isolation="thread", warmup=False)
+    with live_server(settings) as srv:
+        yield srv
+
+
+def _raw_http(srv, request: bytes) -> tuple[str, bytes]:
+    """Send ``request`` as it is over a socket; (status line and headers, body)."""
+    import socket
+
+    host, port = srv.url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=10) as s:
+        s.sendall(request)
+        answer = b""
+        while True:
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            answer += chunk
+    head, _, body = answer.partition(b"\r\n\r\n")
+    return head.decode("latin-1"), body
+
+
+def test_413_messages_name_the_setting_to_raise(small_caps):
+    """They said "... bytes > limit of N bytes" (and "more than N bytes > limit of N" for a
+    chunked body), where docs/service.md promises the setting's name."""
+    cases = [  # (request kwargs, setting named, size said)
+        ({"content": b"\0" * 2001}, "max_video_upload_bytes = 2000", "2001 bytes"),
+        ({"content": iter([b"\0" * 1500, b"\0" * 1500])}, "max_video_upload_bytes = 2000",
+         "more than 2000 bytes"),
+        ({"content": b"\0" * 1500}, "max_upload_bytes = 1000", "1500 bytes"),
+        ({"files": {"file": ("a.bin", b"\0" * 2500)}},
+         "max_video_upload_bytes + multipart_overhead_bytes = 2100", "bytes"),
+    ]
+    with small_caps.client() as c:
+        for kwargs, setting, size in cases:
+            r = c.post("/v1/screen", **kwargs)
+            _err(r, 413, "payload_too_large")
+            message = r.json()["message"]
+            assert setting in message and size in message, message
+            assert "LISHIELD_" + setting.split(" ")[0].upper() in message, message
+            assert "> limit of" not in message
+        r = c.post("/v1/screen/batch", files=[("files", ("a", b"\0" * 1600)),
+                                              ("files", ("b", b"\0" * 1600))])
+        _err(r, 413, "payload_too_large")
+        assert "max_batch_bytes = 3000 bytes (LISHIELD_MAX_BATCH_BYTES)" in r.json()["message"]
+
+
+@pytest.mark.parametrize("request_bytes, code", [
+    (b"POST /v1/screen HTTP/1.1\r\nHost: x\r\nContent-Length: abc\r\n\r\n", "invalid_request"),
+    (b"POST /v1/screen HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\nContent-Length: 7\r\n\r\n",
+     "invalid_request"),
+    (b"NOT HTTP AT ALL\r\n\r\n", "bad_request"),
+    (b"GET / HTTP/1.1\r\nHost x\r\n\r\n", "bad_request"),
+], ids=["content-length-abc", "two-content-lengths", "no-request-line", "header-no-colon"])
+def test_requests_the_server_cannot_parse_get_json_errors(small_caps, request_bytes, code):
+    """uvicorn answered them with a plain-text 400 before the app saw them."""
+    head, body = _raw_http(small_caps, request_bytes)
+    assert head.startswith("HTTP/1.1 400"), head
+    assert "content-type: application/json" in head.lower(), head
+    assert json.loads(body)["code"] == code
