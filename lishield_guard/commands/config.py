@@ -1,4 +1,4 @@
-"""`lishield-guard config show|validate`: print the config that will run, or check a file."""
+"""`lishield-guard config [show|validate]`: print the config that will run, or check a file."""
 
 from __future__ import annotations
 
@@ -14,11 +14,19 @@ __all__ = ["overrides", "register", "show_command", "validate_command"]
 
 config_app = typer.Typer(
     name="config",
-    help="Show the config that will run, or validate a config file.\n\n"
+    help="Show the config that will run (alone: `config show`), or validate a config "
+    "file.\n\n"
     "A config file holds only what it changes: every key left out (policies included) keeps "
     "the shipped, calibrated value; a config that leaves no policy is refused.",
-    no_args_is_help=True,
+    invoke_without_command=True,
 )
+
+
+@config_app.callback()
+def _config_root(ctx: typer.Context) -> None:
+    """Plain ``lishield-guard config`` shows the config that will run (``config show``)."""
+    if ctx.invoked_subcommand is None:
+        show_command(config=None, effective=False)
 
 
 def _flat(cfg) -> dict[str, object]:

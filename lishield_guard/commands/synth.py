@@ -277,7 +277,8 @@ def video(
     out: Path = typer.Option(..., "--out", "-o", help="Output file (.mp4, or .webm for VP8/9)."),
     preset: str | None = typer.Option(None, "--preset", metavar="PRESET",
                                       help="Barcode preset (default: drawn from the mix)."),
-    f_b: float | None = typer.Option(None, "--f-b", help="Switching rate f_B in Hz."),
+    f_b: float | None = typer.Option(None, "--f-b", help="Switching rate f_B in Hz "
+                                     "(default: the preset's own, else drawn from the mix)."),
     negative: Negative | None = typer.Option(None, "--negative",
                                              help="A clean look-alike clip instead."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (default 24-60 drawn)."),
@@ -301,13 +302,16 @@ def video(
                                      help="Image file, skimage:NAME, photos:DIR#I or "
                                           "texture:KIND (default: drawn)."),
     seed: int = typer.Option(0, "--seed", help="Seed of every parameter not given."),
+    as_json: bool = typer.Option(False, "--json", help="Print the clip's full record as one "
+                                 "JSON line (per-frame exposures, light, motion) instead of "
+                                 "the one-line summary."),
 ) -> None:
     """Render one synthetic clip: consecutive rolling-shutter frames, encoded (H.264 MP4).
 
     The LED runs on between frames (frame k starts k/fps after frame 0), auto exposure
-    follows the scene, and the camera may pan and shake over a larger scene. Parameters not
-    given are drawn from the default mixes with --seed; the clip's full record is printed
-    as JSON on stdout.
+    follows the scene, and the camera may pan and shake over a larger scene. A --preset
+    plays at its own f_B unless --f-b says otherwise. Parameters not given are drawn from the
+    default mixes with --seed; one line on stdout sums the clip up (--json: its full record).
 
     Examples:
       lishield-guard synth video -o clip.mp4 --preset table2-rgb --f-b 200 --duration 3
@@ -317,9 +321,12 @@ def video(
     """
     import json
 
+    from lishield_guard.spec import get_preset
     from synth.video import clip_params, render_video_item
 
     try:
+        if preset is not None and f_b is None:  # the preset's own f_B, not the mix's draw
+            f_b = get_preset(preset).f_b_hz
         p = clip_params(seed=seed, size=size, preset=preset, switching_hz=f_b,
                         negative=None if negative is None else str(negative.value), fps=fps,
                         duration_s=duration_s, ambient_ratio=ambient, coverage=coverage,
@@ -335,7 +342,21 @@ def video(
         out.write_bytes(data)
     except OSError as exc:
         raise fail(f"cannot write output: {exc}", ExitCode.ERROR) from None
-    typer.echo(json.dumps({"file": str(out), **rec}, sort_keys=True))
+    if as_json:
+        typer.echo(json.dumps({"file": str(out), **rec}, sort_keys=True))
+    else:
+        typer.echo(_clip_summary(out, rec))
+
+
+def _clip_summary(out: Path, rec: dict) -> str:
+    """``synth video``'s line: the file and what a reader checks first (as ``synth capture``
+    prints one line)."""
+    what = (f"preset={rec.get('preset')} f_B={rec.get('switching_hz'):g}Hz" if rec.get("label")
+            else f"look-alike={rec.get('kind')}")
+    return (f"{out} {what} frames={rec.get('n_frames')} fps={rec.get('fps'):g} "
+            f"duration_s={rec.get('duration_s'):g} size={rec.get('width')}x{rec.get('height')} "
+            f"codec={rec.get('codec')} ambient_ratio={rec.get('ambient_ratio'):.3g} "
+            f"bytes={rec.get('bytes')}")
 
 
 def register(app: typer.Typer) -> None:

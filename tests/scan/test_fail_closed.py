@@ -162,6 +162,14 @@ def test_config_validate_and_show_effective(tmp_path, run_cli):
         partial.read_text().strip()
 
 
+def test_plain_config_shows_the_config_that_will_run(run_cli):
+    """Issue 41: plain `lishield-guard config` printed its help and exited 2, where the README
+    says it shows the config."""
+    res = run_cli("config")
+    assert res.exit_code == 0, res.output
+    assert res.output == run_cli("config", "show").output and "[[policies]]" in res.output
+
+
 def test_config_validate_names_a_stage_turned_off(tmp_path, run_cli):
     off = tmp_path / "off.toml"
     off.write_text("[detector]\nfold = false\n")

@@ -154,9 +154,26 @@ def test_cli_writes_a_clip(tmp_path):
 
     out = tmp_path / "clip.mp4"
     res = CliRunner().invoke(app, ["synth", "video", "-o", str(out), "--size", SIZE,
-                                   "--fps", "24", "--duration", "0.5", "--negative", "mains"])
+                                   "--fps", "24", "--duration", "0.5", "--negative", "mains",
+                                   "--json"])
     assert res.exit_code == 0, res.output
     rec = json.loads(res.stdout.splitlines()[-1])
     assert rec["kind"] == "mains" and rec["n_frames"] == 12
     info, frames = _decode(out.read_bytes())
     assert info["codec"] == "h264" and len(frames) == 12
+
+
+def test_cli_plays_the_presets_own_f_b_and_prints_one_line(tmp_path):
+    """Issue 41: ``--preset table1-seq1`` without ``--f-b`` ran at the mix's 200 Hz, not at
+    the preset's 400 Hz, and the command printed the whole record (per-frame arrays)."""
+    from lishield_guard.cli import app
+    from lishield_guard.spec import get_preset
+
+    out = tmp_path / "clip.mp4"
+    res = CliRunner().invoke(app, ["synth", "video", "-o", str(out), "--size", SIZE,
+                                   "--fps", "24", "--duration", "0.25", "--preset",
+                                   "table1-seq1"])
+    assert res.exit_code == 0, res.output
+    (line,) = res.stdout.splitlines()
+    assert line.startswith(f"{out} preset=table1-seq1 f_B=400Hz frames=6 ") and len(line) < 200
+    assert get_preset("table1-seq1").f_b_hz == 400.0
