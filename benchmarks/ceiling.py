@@ -34,24 +34,19 @@ _MODEL = {}
 
 
 def learned_logit(path: Path, model_path: str | None) -> float | None:
-    """The image logit of a decision model (None: undetermined, nothing usable)."""
+    """The image logit of a decision model as detection computes it (`decision.measure` on
+    the detector's own decode); None when the image is undetermined."""
+    from lishield_guard.config import default_config
     from lishield_guard.decode import decode
-    from lishield_guard.detector.learned import load_model, score_windows, shipped_model
-    from lishield_guard.detector.spectra import USABLE_TILES, analysable
-    from lishield_guard.detector.tfinput import profiles_input
-    from lishield_guard.detector.usable import MIN_USABLE_BLOCKS
+    from lishield_guard.detector.decision import measure
+    from lishield_guard.detector.learned import load_model, shipped_model
 
     if model_path not in _MODEL:
         _MODEL[model_path] = shipped_model() if model_path is None else load_model(model_path)
-    decoded = decode(path.read_bytes(), want_rgb=True, max_rows=768)
-    a = analysable(decoded.rgb(), tiles=USABLE_TILES)
-    usable = {ax: p for ax, p in a["profiles"].items()
-              if int(a["keep"][ax].sum()) >= MIN_USABLE_BLOCKS}
-    if not usable:
-        return None
-    inp = profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"])
-    z = score_windows(inp.x, _MODEL[model_path])
-    return float(z.max()) if len(z) else None
+    det = default_config().detector
+    decoded = decode(path.read_bytes(), want_rgb=True, max_rows=det.profiles.max_decode_rows)
+    rec = measure(decoded.rgb(), det, model=_MODEL[model_path])
+    return None if rec.undetermined is not None else rec.logit
 
 
 def _score(args: tuple) -> dict:

@@ -472,18 +472,23 @@ def _place(dst: np.ndarray, src: np.ndarray, offset_px: float, dst_cell_px: floa
     ``offset_px``) into ``dst`` (cells of ``dst_cell_px``): exact area resampling of piecewise
     constant cells, blended with what ``dst`` holds where a cell is partly covered."""
     n_src, n_dst = src.shape[1], dst.shape[1]
-    cum = np.zeros((src.shape[0], n_src + 1, src.shape[2]), np.float32)
-    np.cumsum(src, axis=1, out=cum[:, 1:])
     edges = np.arange(n_dst + 1, dtype=np.float64) * dst_cell_px
     pos = np.clip((edges - offset_px) / src_cell_px, 0.0, n_src)
-    k = np.minimum(pos.astype(np.int64), n_src - 1)
-    frac = (pos - k).astype(np.float32)[None, :, None]
-    at = cum[:, k] + frac * (cum[:, k + 1] - cum[:, k])  # integral (in cells) up to each edge
     covered = np.diff(pos) * (src_cell_px / dst_cell_px)  # share of each dst cell covered
+    hit = np.flatnonzero(covered > 0)
+    if not hit.size:
+        return
+    j0, j1 = int(hit[0]), int(hit[-1]) + 1  # the covered dst cells are contiguous
+    cum = np.zeros((src.shape[0], n_src + 1, src.shape[2]), np.float32)
+    np.cumsum(src, axis=1, out=cum[:, 1:])
+    p = pos[j0:j1 + 1]
+    k = np.minimum(p.astype(np.int64), n_src - 1)
+    frac = (p - k).astype(np.float32)[None, :, None]
+    lo, hi = cum[:, k], cum[:, k + 1]
+    at = lo + frac * (hi - lo)  # integral (in cells) up to each edge
     vals = np.diff(at, axis=1) * np.float32(src_cell_px / dst_cell_px)
-    keep = (1.0 - covered).astype(np.float32)[None, :, None]
-    touched = covered > 0
-    dst[:, touched] = dst[:, touched] * keep[:, touched] + vals[:, touched]
+    keep = (1.0 - covered[j0:j1]).astype(np.float32)[None, :, None]
+    dst[:, j0:j1] = dst[:, j0:j1] * keep + vals
 
 
 def _paste(canvas: Grids, g: Grids, r0: int, c0: int, scale: float = 1.0) -> None:

@@ -71,22 +71,41 @@ def scene_bank(folder: str = str(DEFAULT_BANK)) -> tuple[str, ...]:
     return tuple(sorted(str(f) for f in p.glob("*.jpg"))) if p.is_dir() else ()
 
 
-@functools.lru_cache(maxsize=64)
-def _bank_linear(path: str) -> np.ndarray:
+@functools.lru_cache(maxsize=1024)
+def _bank_image(path: str) -> np.ndarray:
+    """A scene-bank photo as sRGB uint8 (kept: the bank is small)."""
     from PIL import Image
-
-    from synth.scene import srgb_to_linear
 
     with Image.open(path) as im:
         arr = np.asarray(im.convert("RGB"))
-    out = srgb_to_linear(arr).astype(np.float32)
-    out.setflags(write=False)
-    return out
+    arr.setflags(write=False)
+    return arr
 
 
 # -- the description --------------------------------------------------------------------------
 
-def _scene_desc(rng: np.random.Generator, n_bank: int, kind: str | None = None) -> dict:
+@functools.cache
+def bank_weights(folder: str = str(DEFAULT_BANK)) -> tuple[float, ...]:
+    """Draw probability of every scene-bank photo (`scene_bank` order): 1/sqrt(photos of its
+    package), normalised, so that one large package (a planetarium's sky textures) does not
+    make up most scenes; () when the bank is absent."""
+    import collections
+    import json
+
+    names = [Path(f).name for f in scene_bank(folder)]
+    man = Path(folder) / "manifest.jsonl"
+    pkg = {}
+    if man.exists():
+        pkg = {r["bank"]: r.get("package") for r in map(json.loads, man.read_text().split("\n")
+                                                        [:-1])}
+    keys = [pkg.get(n, n) for n in names]
+    size = collections.Counter(keys)
+    w = np.array([1.0 / math.sqrt(size[k]) for k in keys])
+    return tuple((w / w.sum()).tolist()) if len(w) else ()
+
+
+def _scene_desc(rng: np.random.Generator, weights: tuple[float, ...],
+                kind: str | None = None) -> dict:
     """A scene: a bank photo (crop, flip, white balance, contrast), a procedural scene or a
     periodic texture."""
     from synth.scene import ALL_TEXTURE_KINDS
@@ -94,8 +113,8 @@ def _scene_desc(rng: np.random.Generator, n_bank: int, kind: str | None = None) 
     d: dict = {"seed": int(rng.integers(2**63))}
     if kind == "texture":
         d.update(kind="texture", texture=str(rng.choice(ALL_TEXTURE_KINDS)))
-    elif n_bank and rng.random() < 0.88:
-        d.update(kind="bank", bank_index=int(rng.integers(n_bank)),
+    elif weights and rng.random() < 0.88:
+        d.update(kind="bank", bank_index=int(rng.choice(len(weights), p=np.asarray(weights))),
                  crop=[float(rng.uniform(0.3, 1.0)), float(rng.random()), float(rng.random())],
                  flip=bool(rng.random() < 0.5))
     else:
@@ -156,10 +175,11 @@ def _negative_lights(rng: np.random.Generator, kind: str) -> list[dict]:
     return [{"kind": "steady"}]
 
 
-def sample_example(index: int, seed: int, n_bank: int = 0) -> dict:
+def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> dict:
     """Every parameter of example ``index`` of the dataset drawn with ``seed`` (no rendering).
 
-    ``n_bank`` is the number of scene-bank photos (0: procedural scenes only).
+    ``weights``: draw probability of each scene-bank photo (`bank_weights`); empty for
+    procedural scenes only.
     """
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
     label = int(rng.random() < 0.5)
@@ -216,7 +236,7 @@ def sample_example(index: int, seed: int, n_bank: int = 0) -> dict:
                          "aspect": _log_uniform(rng, 0.4, 2.5),
                          "softness": float(rng.uniform(0.02, 0.25))}
     textured = p["kind"] == "texture" or (label and rng.random() < 0.1)
-    p["scene"] = _scene_desc(rng, n_bank, "texture" if textured else None)
+    p["scene"] = _scene_desc(rng, weights, "texture" if textured else None)
     p["tone"] = None
     if rng.random() < 0.4:
         p["tone"] = {"gamma": _log_uniform(rng, 0.6, 1.6), "s_curve": float(rng.uniform(0, 0.6))}
@@ -235,7 +255,7 @@ def sample_example(index: int, seed: int, n_bank: int = 0) -> dict:
             "where": [float(rng.random()), float(rng.random())],
             "shrink": float(rng.uniform(0.4, 0.8)), "slot": int(rng.integers(4)),
             "frame_photo": bool(rng.random() < 0.4),
-            "tiles": [_scene_desc(rng, n_bank) for _ in range(3)]}
+            "tiles": [_scene_desc(rng, weights) for _ in range(3)]}
     p["jpeg_quality"] = int(rng.integers(40, 99))
     p["subsampling"] = "4:2:0" if rng.random() < 0.75 else "4:4:4"
     return p
@@ -274,7 +294,9 @@ def _camera(p: dict) -> CameraModel:
 
 def _crop(d: dict, bank: tuple[str, ...], n_rows: int, n_cols: int) -> np.ndarray:
     """The bank photo's crop for a frame of (n_rows, n_cols), linear, balanced (any size)."""
-    img = _bank_linear(bank[d["bank_index"] % len(bank)])
+    from synth.scene import srgb_to_linear
+
+    img = _bank_image(bank[d["bank_index"] % len(bank)])
     if d.get("rot90"):
         img = np.rot90(img)
     h, w = img.shape[:2]
@@ -283,7 +305,7 @@ def _crop(d: dict, bank: tuple[str, ...], n_rows: int, n_cols: int) -> np.ndarra
     s = d["crop"][0]
     ch, cw = max(min(int(ch * s), h), 4), max(min(int(cw * s), w), 4)
     r0, c0 = int((h - ch) * d["crop"][1]), int((w - cw) * d["crop"][2])
-    crop = img[r0:r0 + ch, c0:c0 + cw]
+    crop = srgb_to_linear(img[r0:r0 + ch, c0:c0 + cw]).astype(np.float32)
     if d.get("flip"):
         crop = crop[:, ::-1]
     return _balance(crop, d)
@@ -417,6 +439,22 @@ def _compose(img: np.ndarray, c: dict, bank: tuple[str, ...]) -> np.ndarray:
     r0, c0 = int((h - sh) * c["where"][0]), int((w - sw) * c["where"][1])
     out[r0:r0 + sh, c0:c0 + sw] = small
     return out
+
+
+def stripe_lines_per_row(p: dict) -> float:
+    """Lines of the decoded image's stripe axis per frame row of example ``p``: the frame's
+    shrink inside a frame composite, over the decoder's DCT-domain scale."""
+    from lishield_guard.decode import jpeg_scale
+
+    h, w = p["size"][::-1] if p["rotate"] else p["size"]
+    c = p["composite"] or {}
+    if c.get("kind") == "border":
+        h, w = _border_size(h, w, c)
+    elif c.get("kind") == "collage":
+        h, w = 2 * h, 2 * w
+    shrink = c["shrink"] if c.get("kind") == "frame" else 1.0
+    scale = jpeg_scale(h, MAX_DECODE_ROWS if h >= 2 * MAX_DECODE_ROWS else 0)
+    return shrink / scale
 
 
 def _border_size(h: int, w: int, c: dict) -> tuple[int, int]:
@@ -565,7 +603,7 @@ def example_profiles(index: int, seed: int, bank_dir: str = str(DEFAULT_BANK), *
     """Block profiles (axis -> (3, 32, n_lines)) and record of one example, by the profile
     renderer (``fast``) or the full one."""
     bank = scene_bank(bank_dir)
-    p = sample_example(index, seed, len(bank))
+    p = sample_example(index, seed, bank_weights(bank_dir))
     if fast:
         profiles, meas = render_profiles(p, bank)
     else:

@@ -10,8 +10,9 @@ of `N_FREQ` bins. Per instance, `CHANNELS` summarise the frames in time order:
   the frames and at its largest: stripes common to every block of the window grow with their
   number, scene rows do not (DESIGN.md, "Physics that decides accuracy");
 - ``inc_mean``: incoherent luma power (what the blocks show one by one);
-- ``coh_R``, ``coh_G``, ``coh_B``: coherent power per colour plane (an RGB barcode plays its
-  tones at once, one per plane);
+- ``coh_R``, ``coh_G``, ``coh_B``, ``max_R``, ``max_G``, ``max_B``: coherent power per colour
+  plane, averaged over the frames and at its largest (an RGB barcode plays a tone in every
+  plane at once, each plane's tones taking turns);
 - ``turn_<d>``: ln of mean_t[c_t(f) c_t(f·r)] / (mean_t c_t(f) · mean_t c_t(f·r)), the
   co-occurrence in time of the coherent power at f and at f·r, r = 2^(d/24): below 0 when the
   two take turns (a white LED's tones, one per slot), above 0 when they come and go together
@@ -51,7 +52,8 @@ N_FREQ = 96  # 4 octaves: 2 cycles per frame .. 0.5 cycles per (decimated) line
 F_MAX_CPR = 0.5
 MAX_LEVELS = 6  # frames of 64 .. 2048 lines
 TURN_OFFSETS = (4, 5, 6, 8, 10, 12, 14, 24)  # log-frequency bins (ratios 1.12 .. 2)
-POWER_CHANNELS = ("coh_mean", "coh_max", "inc_mean", "coh_R", "coh_G", "coh_B")
+POWER_CHANNELS = ("coh_mean", "coh_max", "inc_mean", "coh_R", "coh_G", "coh_B", "max_R",
+                  "max_G", "max_B")
 TURN_CHANNELS = tuple(f"turn_{d}" for d in TURN_OFFSETS)
 CONST_CHANNELS = ("freq", "level", "frames")
 CHANNELS = POWER_CHANNELS + TURN_CHANNELS + CONST_CHANNELS
@@ -237,9 +239,10 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
     coh = coh @ lm  # (windows, t, N_FREQ)
     w = int(np.argmax(coh.max(axis=(1, 2))))
     c = coh[w]
-    rgb = [(_coherent(spec[i], use, sel[w:w + 1])[0][0] @ lm).mean(axis=0) for i in range(3)]
+    rgb = [_coherent(spec[i], use, sel[w:w + 1])[0][0] @ lm for i in range(3)]  # (t, N_FREQ)
     x = np.empty((len(CHANNELS), N_FREQ), np.float32)
-    powers = [c.mean(axis=0), c.max(axis=0), (inc[w] @ lm).mean(axis=0), *rgb]
+    powers = [c.mean(axis=0), c.max(axis=0), (inc[w] @ lm).mean(axis=0),
+              *(p.mean(axis=0) for p in rgb), *(p.max(axis=0) for p in rgb)]
     x[:len(POWER_CHANNELS)] = np.clip(np.log(np.stack(powers) + _EPS), *LOG_CLIP)
     x[len(POWER_CHANNELS):len(POWER_CHANNELS) + len(TURN_CHANNELS)] = _turns(c)
     x[-3] = np.linspace(-1.0, 1.0, N_FREQ, dtype=np.float32)
