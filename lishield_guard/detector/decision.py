@@ -17,7 +17,14 @@ import numpy as np
 
 from lishield_guard.config import DetectorConfig
 from lishield_guard.detector.learned import DecisionModel, load_model, score_windows, shipped_model
-from lishield_guard.detector.spectra import AXIS_NAMES, SpectralInput, analysable, axes_input
+from lishield_guard.detector import tfinput
+from lishield_guard.detector.spectra import (
+    AXIS_NAMES,
+    USABLE_TILES,
+    SpectralInput,
+    analysable,
+    axes_input,
+)
 from lishield_guard.detector.usable import MIN_USABLE_BLOCKS
 
 __all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "window_label"]
@@ -106,7 +113,9 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
         range, clipped, fewer than `usable.MIN_USABLE_BLOCKS` usable column blocks).
     """
     axes = (0, 1) if det.profiles.orientations == "both" else (0,)
-    a = analysable(pixels, axes)
+    model = model or decision_model(det)
+    timefreq = model.card["input_version"] == tfinput.INPUT_VERSION
+    a = analysable(pixels, axes, tiles=USABLE_TILES if timefreq else 1)
     if not a["profiles"]:
         return DecisionRecord(np.zeros(0, np.float32), axes_input({}, full_scale=1.0),
                               "image too small: " + "; ".join(a["skipped"]))
@@ -114,12 +123,15 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
                   if why)
     usable = {ax: p for ax, p in a["profiles"].items()
               if int(a["keep"][ax].sum()) >= MIN_USABLE_BLOCKS}
-    spectra = axes_input(usable, full_scale=a["full_scale"], skipped=a["skipped"],
-                         keep=a["keep"])
+    if timefreq:
+        spectra = tfinput.profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"])
+    else:
+        spectra = axes_input(usable, full_scale=a["full_scale"], skipped=a["skipped"],
+                             keep=a["keep"])
     if not usable:
         lo, hi = float(np.min(pixels)), float(np.max(pixels))
         why = (f"no dynamic range: every pixel is {lo:g}" if lo == hi else
                f"too few usable column blocks on every analysed axis ({'; '.join(notes)})")
         return DecisionRecord(np.zeros(0, np.float32), spectra, why, notes)
-    logits = score_windows(spectra.x, model or decision_model(det))
+    logits = score_windows(spectra.x, model)
     return DecisionRecord(logits, spectra, None, notes)

@@ -26,11 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from lishield_guard.detector.spectra import CHANNELS, INPUT_VERSION, N_FREQ
+from lishield_guard.detector import spectra, tfinput
 from lishield_guard.errors import ConfigError
 
 __all__ = ["DecisionModel", "load_model", "score_windows", "shipped_model"]
 
+#: Input representations the inference knows: version -> (channels, frequency bins).
+INPUT_SHAPES = {spectra.INPUT_VERSION: (len(spectra.CHANNELS), spectra.N_FREQ),
+                tfinput.INPUT_VERSION: (len(tfinput.CHANNELS), tfinput.N_FREQ)}
 MODEL_FILE = "decision_model.npz"
 CARD_FILE = "decision_model.json"
 
@@ -102,8 +105,9 @@ def score_windows(x: np.ndarray, model: DecisionModel) -> np.ndarray:
     ConfigError
         When x does not have the model's input shape.
     """
-    if x.ndim != 3 or x.shape[1:] != (len(CHANNELS), N_FREQ):
-        raise ConfigError(f"decision input must have shape (n, {len(CHANNELS)}, {N_FREQ}), "
+    shape = INPUT_SHAPES[model.card["input_version"]]
+    if x.ndim != 3 or x.shape[1:] != shape:
+        raise ConfigError(f"decision input must have shape (n, {shape[0]}, {shape[1]}), "
                           f"got {x.shape}")
     if len(x) == 0:
         return np.zeros(0, np.float32)
@@ -138,10 +142,10 @@ def load_model(weights: str | Path, card: str | Path | None = None) -> DecisionM
 
 
 def _from_arrays(arrays: dict, meta: dict, where: str) -> DecisionModel:
-    if meta.get("input_version") != INPUT_VERSION:
+    if meta.get("input_version") not in INPUT_SHAPES:
         raise ConfigError(f"decision model {where} was trained on input "
                           f"{meta.get('input_version')!r}; this code computes "
-                          f"{INPUT_VERSION!r}: retrain it (make train)")
+                          f"{' or '.join(map(repr, INPUT_SHAPES))}: retrain it (make train)")
     try:
         convs = tuple((arrays[f"conv{i}_w"].astype(np.float32),
                        arrays[f"conv{i}_b"].astype(np.float32), int(d))
