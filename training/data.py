@@ -204,7 +204,7 @@ def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> di
         lights.append({"kind": "led", "preset": spec.name, "switching_hz": round(f_b, 2),
                        "order": [int(i) for i in rng.permutation(m)], "phase": phase,
                        "duty": duty, "rise_s": float(rng.uniform(0, 0.1)) * half,
-                       "loop_patterns": max(1, math.ceil(0.1 * f_b / m))
+                       "loop_patterns": max(1, math.ceil(0.05 * f_b / m))
                        if phase == "continuous" else 1})
         p["kind"], p["preset"] = "barcode", spec.name
         if rng.random() < 0.2:
@@ -264,12 +264,35 @@ def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> di
 # -- shared pieces of both renderers ----------------------------------------------------------
 
 def _make_light(d: dict):
-    """The light of one description."""
+    """The light of one description (a barcode LED plays the firmware's sequence, compiled
+    without the accuracy report: at 16 MHz every tone is kept)."""
     from synth.dataset import _make_light as make
 
     if d["kind"] == "switched":
         raise ValueError("a switched light needs the frame's timing (`_lights`)")
-    return make({"light": d})
+    if d["kind"] != "led":
+        return make({"light": d})
+    return _led_light(d["preset"], d["switching_hz"], d["phase"], tuple(d["order"]),
+                      d["duty"], d["loop_patterns"], d["rise_s"])
+
+
+def _led_light(preset: str, f_b: float, phase: str, order: tuple, duty: float, loops: int,
+               rise_s: float):
+    import dataclasses
+    import warnings
+
+    from firmware.sequence import compile_spec
+    from lishield_guard.spec import SpecWarning
+    from synth.dataset import EMITTER_ALLOW, LED_CLOCK_HZ
+    from synth.light import SequenceLight
+
+    spec = dataclasses.replace(get_preset(preset), switching_hz=f_b, phase=phase,
+                               order=order, duty=duty)
+    with warnings.catch_warnings():  # f_B = 200 Hz breaks our flicker rule, on purpose
+        warnings.simplefilter("ignore", SpecWarning)
+        seq = compile_spec(spec, clock_hz=LED_CLOCK_HZ, allow=EMITTER_ALLOW, n_patterns=loops,
+                           verify=False)
+    return SequenceLight(seq, rise_s=rise_s)
 
 
 def _lights(p: dict, readout_s: float):
@@ -305,10 +328,13 @@ def _crop(d: dict, bank: tuple[str, ...], n_rows: int, n_cols: int) -> np.ndarra
     s = d["crop"][0]
     ch, cw = max(min(int(ch * s), h), 4), max(min(int(cw * s), w), 4)
     r0, c0 = int((h - ch) * d["crop"][1]), int((w - cw) * d["crop"][2])
-    crop = srgb_to_linear(img[r0:r0 + ch, c0:c0 + cw]).astype(np.float32)
+    crop = img[r0:r0 + ch, c0:c0 + cw]
     if d.get("flip"):
         crop = crop[:, ::-1]
-    return _balance(crop, d)
+    # linearise, contrast and white balance in one lookup per channel (what `_balance` does)
+    lut = _balance(np.repeat(srgb_to_linear(np.arange(256, dtype=np.uint8))[:, None], 3,
+                             axis=1).astype(np.float32), d)
+    return np.stack([lut[crop[..., c], c] for c in range(3)], axis=-1)
 
 
 def _balance(refl: np.ndarray, d: dict) -> np.ndarray:
@@ -329,8 +355,8 @@ def _full_scene(d: dict, bank: tuple[str, ...], n_rows: int, n_cols: int) -> np.
     rows, cols = (n_cols, n_rows) if d.get("rot90") else (n_rows, n_cols)
     if d["kind"] == "texture":
         refl, _ = texture_scene(d["texture"], rows, cols, rng=rng)
-    else:
-        refl = _procedural(rng, rows, cols)
+    else:  # drawn at half size: smooth shapes, a grain of two pixels
+        refl = _resize(_procedural(rng, max(rows // 2, 2), max(cols // 2, 2)), rows, cols)
     if d.get("rot90"):
         refl = np.ascontiguousarray(np.rot90(refl))
     return _balance(refl, d)
@@ -344,8 +370,10 @@ def _procedural(rng: np.random.Generator, n_rows: int, n_cols: int) -> np.ndarra
         r0, c0 = int(rng.integers(n_rows)), int(rng.integers(n_cols))
         h, w = int(rng.integers(8, max(9, n_rows // 2))), int(rng.integers(8, max(9, n_cols // 2)))
         img[r0:r0 + h, c0:c0 + w] = rng.uniform(0.05, 0.95, 3)
-    grain = rng.normal(1.0, float(rng.uniform(0, 0.08)), (n_rows, n_cols, 1))
-    return np.clip(img * grain.astype(np.float32), 0.01, 1.0).astype(np.float32)
+    grain = rng.standard_normal((n_rows, n_cols, 1), dtype=np.float32)
+    grain *= np.float32(rng.uniform(0, 0.08))
+    grain += np.float32(1.0)
+    return np.clip(img * grain, 0.01, 1.0).astype(np.float32)
 
 
 def _coverage_at(c: dict | None, rows_frac: np.ndarray, cols_frac: np.ndarray,
