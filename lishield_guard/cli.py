@@ -23,8 +23,6 @@ def _tidy_help() -> None:
     - prose paragraphs of a docstring are re-flowed (Typer keeps the source's line breaks), while
       a paragraph with indented lines (an ``Examples:`` block) keeps its lines and indentation.
     """
-    import inspect
-
     option, argument = (getattr(typer.core, "TyperOption", None),
                         getattr(typer.core, "TyperArgument", None))
     if option is not None and hasattr(option, "display_type_rich"):
@@ -41,11 +39,34 @@ def _tidy_help() -> None:
             return None if self.metavar else shown_arg(self, ctx)
 
         argument.display_type_rich = argument_type
+    # Rich's help formatter costs about 0.1 s to import: it is patched when help is rendered,
+    # not at every start of the command line
+    for cls in (getattr(typer.core, "TyperCommand", None), getattr(typer.core, "TyperGroup",
+                                                                      None)):
+        if cls is not None and hasattr(cls, "format_help"):
+            cls.format_help = _tidied_first(cls.format_help)
+
+
+def _tidied_first(format_help):
+    """``format_help`` that re-flows Rich's paragraphs (`_tidy_rich_paragraphs`) first."""
+
+    def tidied(self, ctx, formatter):
+        _tidy_rich_paragraphs()
+        return format_help(self, ctx, formatter)
+
+    return tidied
+
+
+def _tidy_rich_paragraphs() -> None:
+    """Re-flow prose paragraphs in Rich's help, keep indented blocks (`_tidy_help`); once."""
+    import inspect
+
     try:
         import typer.rich_utils as rich_utils
     except ImportError:  # Rich not installed: click's own formatter re-flows paragraphs
         return
-    if not (hasattr(rich_utils, "_fix_linebreaks")
+    if getattr(rich_utils, "_lishield_tidy", False) or not (
+            hasattr(rich_utils, "_fix_linebreaks")
             and len(inspect.signature(rich_utils._fix_linebreaks).parameters) == 2):
         return
 
@@ -68,6 +89,7 @@ def _tidy_help() -> None:
         return "\n" + "\n\n".join(out)
 
     rich_utils._fix_linebreaks = fix_linebreaks
+    rich_utils._lishield_tidy = True
 
 
 _tidy_help()

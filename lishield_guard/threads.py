@@ -26,22 +26,31 @@ __all__ = ["native_threads", "one_thread_per_worker", "pin_native_threads", "pin
 _LIMITER = None  # keeps a process-wide BLAS limit alive for the life of the process
 _PINNED: int | None = None  # the process-wide limit, once set
 _CONTROLLER = None  # threadpoolctl's view of the loaded BLAS libraries (built once)
+_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _SCOPE_LOCK = threading.Lock()
 _SCOPE: dict = {"depth": 0, "restore": None, "n": None}
 
 
+_BLAS_MODULES = ("numpy", "cv2", "scipy.linalg", "sklearn", "torch")  # each brings its own
+
+
 def _controller():
-    """The BLAS libraries of this process, loaded first so that every one of them is seen
-    (numpy's, scipy's and OpenCV's own OpenBLAS; threadpoolctl limits only loaded ones)."""
+    """threadpoolctl's view of the BLAS libraries loaded now (numpy's and OpenCV's OpenBLAS
+    are loaded first: the caller is about to use them). It is built again when a module that
+    brings another BLAS library has been imported since (scipy.linalg, for one), and is
+    otherwise reused (building it costs about 4 ms)."""
     global _CONTROLLER
-    if _CONTROLLER is None:
-        import cv2  # noqa: F401 - its bundled OpenBLAS
-        import numpy  # noqa: F401
-        import scipy.linalg  # noqa: F401
+    import sys
+
+    import cv2  # noqa: F401 - its bundled OpenBLAS
+    import numpy  # noqa: F401
+
+    loaded = tuple(name in sys.modules for name in _BLAS_MODULES)
+    if _CONTROLLER is None or _CONTROLLER[0] != loaded:
         from threadpoolctl import ThreadpoolController
 
-        _CONTROLLER = ThreadpoolController().select(user_api="blas")
-    return _CONTROLLER
+        _CONTROLLER = (loaded, ThreadpoolController().select(user_api="blas"))
+    return _CONTROLLER[1]
 
 
 def _check(n_threads: int) -> int:
@@ -57,7 +66,9 @@ def pin_native_threads(n_threads: int = 1) -> None:
 
     Call it once at the start of a command, in each worker process (a pool's initializer)
     and in a service whose detections run side by side in threads. Calling it again with
-    another count changes the limit.
+    another count changes the limit. The BLAS libraries loaded now are limited with
+    threadpoolctl, those loaded later (and child processes) by ``OPENBLAS_NUM_THREADS``,
+    ``OMP_NUM_THREADS`` and ``MKL_NUM_THREADS``, which are set to ``n_threads``.
 
     Parameters
     ----------
@@ -70,13 +81,17 @@ def pin_native_threads(n_threads: int = 1) -> None:
         When ``n_threads`` is not an integer >= 1.
     """
     global _LIMITER, _PINNED
-    import cv2
+    import os
 
     n_threads = _check(n_threads)
+    for var in _THREAD_VARIABLES:  # BLAS libraries loaded later (and child processes)
+        os.environ[var] = str(n_threads)
+    import cv2
+
     controller = _controller()
     cv2.setNumThreads(n_threads)
-    if _PINNED != n_threads:
-        _LIMITER = controller.limit(limits=n_threads)
+    if _PINNED != n_threads or _LIMITER is None or _LIMITER[0] is not controller:
+        _LIMITER = (controller, controller.limit(limits=n_threads))
         _PINNED = n_threads
 
 
