@@ -40,3 +40,41 @@ def test_readme_figure_captions_follow_the_deciding_stage(tmp_path):
     make_docs.write_demo_images(tmp_path)
     assert make_docs.read_block(make_docs.README.read_text(), "figure-captions") == \
         make_docs.captions_block(tmp_path), "README's figure captions are stale: run `make docs`"
+
+
+def test_design_doc_figure_captions_are_generated_too(tmp_path):
+    """Issue 41: design.md's "Reading the figure" described the old three panels; its captions
+    are now the generated block (with the page's own link to the clean figure)."""
+    pytest.importorskip("synth")
+    make_docs.write_demo_images(tmp_path)
+    assert make_docs.read_block(make_docs.DESIGN_DOC.read_text(), "figure-captions") == \
+        make_docs.captions_block(tmp_path, make_docs.DESIGN_DOC), \
+        "design.md's figure captions are stale: run `make docs`"
+
+
+def test_every_image_the_docs_show_is_known_and_present():
+    """`make docs --check` knows what makes every image the docs show (issue 41: the reviewer
+    screenshot and design.md's figures were stale and nothing checked them)."""
+    assert make_docs.figure_problems({}) == []
+    shown = make_docs.doc_images()
+    assert {"verdict_protected.png", "review_page.png"} <= set(shown)
+    assert {f.name for f in make_docs.FIGURES_SHOWN} >= set(shown)
+
+
+def test_verdict_figures_match_a_fresh_rendering(tmp_path):
+    pytest.importorskip("synth")
+    make_docs.write_demo_images(tmp_path)
+    (tmp_path / "figs").mkdir()
+    made = make_docs.render_verdict_figures(tmp_path, tmp_path / "figs")
+    assert set(made) == {"verdict_protected.png", "verdict_clean.png"}
+    assert make_docs.figure_problems(made) == []
+
+
+def test_a_changed_figure_is_reported(tmp_path):
+    from PIL import Image
+
+    fresh = tmp_path / "verdict_clean.png"
+    Image.open(make_docs.FIGURES / "verdict_clean.png").convert("L").convert("RGB").rotate(
+        180).save(fresh)
+    (problem,) = make_docs.figure_problems({"verdict_clean.png": fresh})
+    assert "verdict_clean.png differs from a fresh rendering" in problem

@@ -3,8 +3,10 @@
 The browser test drives Debian's Chromium through Selenium (chromium + chromium-driver from
 apt, selenium from PyPI; `make test` installs them when run as root). It is skipped, with the
 reason, when any of them is missing. Set LISHIELD_SCREENSHOT_DIR to keep the screenshot of the
-page after an upload, and LISHIELD_REVIEW_IMAGE to upload another image than the demo's
-protected capture (docs/figures/review_page.png was made that way).
+page after an upload (`make docs` does, for docs/figures/review_page.png), and
+LISHIELD_REVIEW_IMAGE to upload another image than the demo's protected capture; without
+either, the screenshot is compared with docs/figures/review_page.png, so a changed page or
+figure fails until `make docs` retakes it.
 """
 
 from __future__ import annotations
@@ -100,3 +102,19 @@ def test_reviewer_page_in_a_headless_browser(authed, demo_pair, tmp_path):
         if keep:
             Path(keep).mkdir(parents=True, exist_ok=True)
             shutil.copy(shot, Path(keep) / "review_page.png")
+        elif not os.environ.get("LISHIELD_REVIEW_IMAGE"):  # the docs' screenshot is this page
+            _assert_docs_screenshot_is(shot)
+
+
+def _assert_docs_screenshot_is(shot: Path) -> None:
+    """docs/figures/review_page.png is what the page shows now (issue 41: it showed the old
+    page and figure for a capture today's default calls clean); `make docs` retakes it."""
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    sys.path.insert(0, str(root / "scripts"))
+    try:
+        import make_docs
+    finally:
+        sys.path.remove(str(root / "scripts"))
+    assert make_docs.figure_problems({"review_page.png": shot}) == []
