@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 __all__ = ["CELL_PX", "Grids", "SceneGrids", "blank_grids", "block_profiles", "capture_grids",
-           "compose_border", "compose_collage", "compose_frame", "jpeg_roundtrip",
+           "compose_border", "compose_collage", "compose_frame", "grids_of_pixels", "jpeg_roundtrip",
            "postprocess_grids", "resize_lines", "rotate_grids", "scene_grids", "still_grids"]
 
 CELL_PX = 8  # pixels per cell: the JPEG block side
@@ -84,6 +84,21 @@ class Grids:
 
 def _cells(n: int) -> int:
     return -(-n // CELL_PX)
+
+
+def grids_of_pixels(img: np.ndarray, *, rows: bool = True, cols: bool = True) -> Grids:
+    """The exact cell grids of a rendered image (n_rows, n_cols, 3): means of runs of 8
+    pixels, the last run of a line shorter when the side is not a multiple of 8."""
+    x = np.asarray(img, np.float32)
+    h, w = x.shape[:2]
+
+    def runs(a: np.ndarray) -> np.ndarray:  # (lines, across, 3) -> (lines, cells, 3)
+        n = a.shape[1]
+        starts = np.arange(0, n, CELL_PX)
+        sums = np.add.reduceat(a, starts, axis=1)
+        return sums / np.diff(np.append(starts, n)).astype(np.float32)[None, :, None]
+
+    return Grids(runs(x) if rows else None, runs(x.transpose(1, 0, 2)) if cols else None, h, w)
 
 
 def _resize2(x: np.ndarray, n: int, axis: int, area: bool | None = None) -> np.ndarray:

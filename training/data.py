@@ -353,10 +353,12 @@ def _full_scene(d: dict, bank: tuple[str, ...], n_rows: int, n_cols: int) -> np.
     if d["kind"] == "bank" and bank:
         return _resize(np.ascontiguousarray(_crop(d, bank, n_rows, n_cols)), n_rows, n_cols)
     rows, cols = (n_cols, n_rows) if d.get("rot90") else (n_rows, n_cols)
+    half = max(rows // 2, 2), max(cols // 2, 2)  # drawn at half size, enlarged: a texture's
+    #                                              period and a grain of two pixels or more
     if d["kind"] == "texture":
-        refl, _ = texture_scene(d["texture"], rows, cols, rng=rng)
-    else:  # drawn at half size: smooth shapes, a grain of two pixels
-        refl = _resize(_procedural(rng, max(rows // 2, 2), max(cols // 2, 2)), rows, cols)
+        refl = _resize(texture_scene(d["texture"], *half, rng=rng)[0], rows, cols)
+    else:
+        refl = _resize(_procedural(rng, *half), rows, cols)
     if d.get("rot90"):
         refl = np.ascontiguousarray(np.rot90(refl))
     return _balance(refl, d)

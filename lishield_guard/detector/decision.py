@@ -27,7 +27,8 @@ from lishield_guard.detector.spectra import (
 )
 from lishield_guard.detector.usable import MIN_USABLE_BLOCKS
 
-__all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "window_label"]
+__all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "spectrum_view",
+           "window_label"]
 
 @dataclass(frozen=True)
 class DecisionRecord:
@@ -83,14 +84,36 @@ def _load(path: str) -> DecisionModel:
     return load_model(path)
 
 
-def window_label(spectra: SpectralInput, index: int) -> str:
-    """Where window ``index`` lies, in words (``"stripes along rows; columns 25%-75%, rows
-    0%-50%"``)."""
-    c0, c1, r0, r1 = spectra.windows[index]
+def window_label(spectra, index: int) -> str:
+    """Where window or instance ``index`` lies, in words (``"stripes along rows; columns
+    25%-75%, rows 0%-50%"``, or for the time-frequency input ``"stripes along rows; columns
+    25%-75%, frames of 256 rows"``)."""
     across = "columns" if spectra.axes[index] == "rows" else "rows"
     along = "rows" if spectra.axes[index] == "rows" else "columns"
+    if isinstance(spectra, tfinput.TimeFreqInput):
+        c0, c1 = spectra.windows[index]
+        frame = tfinput.FRAME_LINES << spectra.levels[index]
+        return (f"stripes along {spectra.axes[index]}; {across} {c0:.0%}-{c1:.0%}, "
+                f"frames of {frame} {along}")
+    c0, c1, r0, r1 = spectra.windows[index]
     return (f"stripes along {spectra.axes[index]}; {across} {c0:.0%}-{c1:.0%}, "
             f"{along} {r0:.0%}-{r1:.0%}")
+
+
+def spectrum_view(spectra, index: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The whitened coherent log power of window or instance ``index`` per colour plane
+    (``"R"``, ``"G"``, ``"B"`` and ``"L"``, their mean) and its frequency grid in cycles per
+    analysed line: what the explanation (`explain.match_specs`) reads, whichever input the
+    model has. A time-frequency instance gives its power averaged over the frames."""
+    x = spectra.x[index]
+    if isinstance(spectra, tfinput.TimeFreqInput):
+        ch = tfinput.CHANNELS
+        planes = {"R": x[ch.index("coh_R")], "G": x[ch.index("coh_G")],
+                  "B": x[ch.index("coh_B")], "L": x[ch.index("coh_mean")]}
+        return planes, tfinput.freq_grid_cpr() / (1 << spectra.levels[index])
+    from lishield_guard.detector.spectra import CHANNELS, freq_grid_cpr
+
+    return ({c: x[CHANNELS.index(f"coh_{c}")] for c in "RGBL"}, freq_grid_cpr())
 
 
 def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | None = None
