@@ -84,7 +84,8 @@ def _template(spec: BarcodeSpec) -> dict[str, np.ndarray]:
             for c, fs in spec.channels}
 
 
-def match_specs(window: np.ndarray, specs: list[BarcodeSpec]) -> list[SpecFit]:
+def match_specs(window: np.ndarray, specs: list[BarcodeSpec],
+                scale_range_cpr_per_hz: tuple[float, float] | None = None) -> list[SpecFit]:
     """Best placement of every spec's tone template on one window, best spec first.
 
     Parameters
@@ -93,6 +94,11 @@ def match_specs(window: np.ndarray, specs: list[BarcodeSpec]) -> list[SpecFit]:
         One window of `spectra.SpectralInput.x`.
     specs : list of BarcodeSpec
         The configured specs.
+    scale_range_cpr_per_hz : (float, float), optional
+        Scales a capture can have (cycles per analysed row of a 1 Hz tone: the row time times
+        the decode scale): templates are placed only there. A placement outside it would
+        put a spec's tones where no camera can (JPEG and video block-grid lines near
+        0.4 cycles per row look like a white spec's tones there). None: every placement.
 
     Returns
     -------
@@ -109,6 +115,12 @@ def match_specs(window: np.ndarray, specs: list[BarcodeSpec]) -> list[SpecFit]:
         if span >= n:
             continue
         starts = np.arange(n - span)  # every placement of the lowest tone
+        if scale_range_cpr_per_hz is not None:
+            lo, hi = scale_range_cpr_per_hz
+            scale = grid[starts] / spec.f1_hz
+            starts = starts[(scale >= lo) & (scale <= hi)]
+            if not len(starts):
+                continue
         if spec.is_rgb:
             own = np.mean([planes[c][starts[:, None] + off].mean(axis=1)
                            for c, off in tmpl.items()], axis=0)
@@ -121,14 +133,15 @@ def match_specs(window: np.ndarray, specs: list[BarcodeSpec]) -> list[SpecFit]:
             score = np.min([planes[c][starts[:, None] + off].mean(axis=1) for c in "RGB"],
                            axis=0)
             leak = None
-        k = int(np.argmax(score))
+        i = int(np.argmax(score))
+        k = int(starts[i])
         f0 = float(grid[k])
         fits.append(SpecFit(
-            spec.name, float(score[k]), f0 / spec.f1_hz,
+            spec.name, float(score[i]), f0 / spec.f1_hz,
             {c: [float(grid[k + o]) for o in off] for c, off in tmpl.items()},
             {c: [float(planes[c if spec.is_rgb else "L"][k + o]) for o in off]
              for c, off in tmpl.items()},
-            None if leak is None else float(leak[k])))
+            None if leak is None else float(leak[i])))
     return sorted(fits, key=lambda f: -f.score)
 
 

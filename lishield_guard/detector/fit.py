@@ -50,7 +50,7 @@ from lishield_guard.detector.numerics import (
     block_coherence_t,
     highpass_gain_at,
     linear_common,
-    lookalike_rho,
+    lookalike_fit,
 )
 from lishield_guard.detector.results import ModelFit
 from lishield_guard.spec import BarcodeSpec
@@ -325,14 +325,15 @@ def refine(blocks_log: np.ndarray, spec: BarcodeSpec, channel: str, starts, *,
     p, c1, phi, e = th[:4]
     tr = hp(model.rows(th))
     rho = float(min(rho, 1.0))
-    alt = lookalike_rho(y, hp) if rho >= FIT_RHO_FLOOR else None
+    alt, square = lookalike_fit(y, hp) if rho >= FIT_RHO_FLOOR else (None, None)
     leak = None
     if colour_blocks is not None and rho >= FIT_RHO_FLOOR:
         amps = [float(hp(linear_common(colour_blocks[c])[0]) @ tr) for c in "RGB"]
         leak = chroma_leak(np.array(amps), channel)
     return ModelFit(spec.name, channel, rho, alt,
                     float(p), float(c1), float(phi % m), float(e),
-                    block_coherence_t(blocks_hp, tr, weights), n / float(p), leak)
+                    block_coherence_t(blocks_hp, tr, weights), n / float(p), leak,
+                    lookalike=square)
 
 
 def _free_running_fits(x: np.ndarray, knots: _KnotMaker, model: _Objective,

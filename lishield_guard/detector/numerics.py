@@ -16,8 +16,8 @@ import numpy as np
 
 __all__ = ["DISPLAY_GAMMA", "HIGHPASS_CYCLES", "LOOKALIKE_DOMINANT_RHO", "START_SEPARATION",
            "block_coherence_t", "highpass_gain", "highpass_gain_at", "linear_common",
-           "linearise", "lookalike_rho", "mirror_rfft", "quiet_weights", "square_candidates",
-           "square_rows", "steady_rho"]
+           "linearise", "lookalike_fit", "lookalike_rho", "mirror_rfft", "quiet_weights",
+           "square_candidates", "square_rows", "steady_rho"]
 
 DISPLAY_GAMMA = 2.2  # stored value ~ linear light ** (1 / gamma) (sRGB, unitless)
 HIGHPASS_CYCLES = 1.5  # cycles per pattern period below which content is ignored (as fold.py)
@@ -231,8 +231,15 @@ def steady_rho(blocks_log: np.ndarray, period_rows: float) -> float:
 
 
 def lookalike_rho(y_hp: np.ndarray, hp) -> float:
+    """Best correlation of a stationary square wave with high-passed rows (`lookalike_fit`)."""
+    return lookalike_fit(y_hp, hp)[0]
+
+
+def lookalike_fit(y_hp: np.ndarray, hp) -> tuple[float, tuple[float, float, float, float] | None]:
     """Best correlation of a stationary square wave (any frequency, duty, phase, exposure)
-    with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way).
+    with high-passed rows ``y_hp`` (``hp`` high-passes a template the same way), and its
+    parameters (frequency in cycles per row, duty, phase and exposure in cycles; None when
+    nothing was fitted).
 
     Candidate fundamentals are the periodogram's strongest peaks and their half and third (a
     square wave's fundamental is not always its strongest line after the high-pass). For each
@@ -249,10 +256,10 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
     n = y.size
     yy = float(y @ y)
     if n < 8 or not yy > 0:
-        return 0.0
+        return 0.0, None
     cands = square_candidates(y)
     if not cands:
-        return 0.0
+        return 0.0, None
     rows = np.arange(n, dtype=np.float64)
     gain_at = getattr(hp, "gain_at", None)
     starts = sorted((_square_start(y, yy, f0, gain_at) for f0 in cands), key=lambda s: -s[0])
@@ -263,11 +270,12 @@ def lookalike_rho(y_hp: np.ndarray, hp) -> float:
             return 1.0
         return -_corr(hp(square_rows(f * rows + ph, d, e)), y, yy)
 
-    best = 0.0
+    best, params = 0.0, None
     for _, x0 in starts[:SQUARE_REFINES]:
-        val, _ = _nelder_mead(loss, x0, np.array([0.01 * x0[0], 0.05, 0.05, 0.05]))
-        best = max(best, -val)
-    return float(min(best, 1.0))
+        val, th = _nelder_mead(loss, x0, np.array([0.01 * x0[0], 0.05, 0.05, 0.05]))
+        if params is None or -val > best:
+            best, params = -val, tuple(float(v) for v in th)
+    return float(min(max(best, 0.0), 1.0)), params
 
 
 def _square_start(y: np.ndarray, yy: float, f0_cpr: float, gain_at) -> tuple[float, np.ndarray]:

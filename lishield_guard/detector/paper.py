@@ -9,22 +9,39 @@ import numpy as np
 from lishield_guard.config import DetectorConfig, Policy
 from lishield_guard.spec import BarcodeSpec
 
-__all__ = ["block_peaks_hz", "count_ratio_matches", "required_matches", "run_paper"]
+__all__ = ["block_peaks_hz", "column_row_means", "count_ratio_matches", "required_matches",
+           "run_paper"]
 
 
-def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
+def _cuts(n: int, k: int) -> np.ndarray:
+    return np.linspace(0, n, k + 1).round().astype(int)
+
+
+def column_row_means(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    """Mean of every row within each of the n_bc column blocks, shape (n_bc, n_rows), float64:
+    a block's row means are its rows' slice of these."""
+    col_cuts = _cuts(plane.shape[1], config.paper.n_block_cols)
+    return np.array([plane[:, c0:c1].mean(axis=1, dtype=np.float64) if c1 > c0
+                     else np.full(plane.shape[0], np.nan)
+                     for c0, c1 in zip(col_cuts[:-1], col_cuts[1:], strict=True)])
+
+
+def block_peaks_hz(plane: np.ndarray, config: DetectorConfig,
+                   row_means: np.ndarray | None = None) -> np.ndarray:
     """Unique peak frequencies (Hz at the nominal row rate) over all n_br x n_bc blocks.
 
     For every block: mean of each row, linear detrend, FFT magnitude, then the ``max_peaks``
     (M_p) largest local maxima with ``band_hz[0] <= f <= band_hz[1]``, where bin k of a block
-    of L rows is at k * nominal_row_rate_hz / L Hz.
+    of L rows is at k * nominal_row_rate_hz / L Hz. ``row_means``: `column_row_means` of the
+    plane, when already computed.
     """
     from scipy.signal import detrend
 
     n_rows, n_cols = plane.shape
     lo_hz, hi_hz = config.paper.band_hz
-    row_cuts = np.linspace(0, n_rows, config.paper.n_block_rows + 1).round().astype(int)
-    col_cuts = np.linspace(0, n_cols, config.paper.n_block_cols + 1).round().astype(int)
+    row_cuts = _cuts(n_rows, config.paper.n_block_rows)
+    col_cuts = _cuts(n_cols, config.paper.n_block_cols)
+    means = column_row_means(plane, config) if row_means is None else row_means
     found: set[float] = set()
     for r0, r1 in zip(row_cuts[:-1], row_cuts[1:], strict=True):
         length = int(r1 - r0)
@@ -34,10 +51,10 @@ def block_peaks_hz(plane: np.ndarray, config: DetectorConfig) -> np.ndarray:
         in_band = (freqs >= lo_hz) & (freqs <= hi_hz)
         if not in_band.any():
             continue
-        for c0, c1 in zip(col_cuts[:-1], col_cuts[1:], strict=True):
+        for b, (c0, c1) in enumerate(zip(col_cuts[:-1], col_cuts[1:], strict=True)):
             if c1 <= c0:
                 continue
-            s_r = plane[r0:r1, c0:c1].mean(axis=1, dtype=np.float64)
+            s_r = means[b, r0:r1]
             d = detrend(s_r)
             if not np.abs(d).max(initial=0.0) > 1e-9 * max(np.abs(s_r).max(initial=0.0), 1e-12):
                 continue  # a flat block: its "peaks" would be floating-point round-off
@@ -71,13 +88,15 @@ def required_matches(spec: BarcodeSpec, config: DetectorConfig) -> int:
 
 
 def run_paper(planes: dict[str, np.ndarray], policies: tuple[Policy, ...],
-              config: DetectorConfig) -> dict:
+              config: DetectorConfig, row_means: dict[str, np.ndarray] | None = None) -> dict:
     """Algorithm 1 over the given planes (luma, or R/G/B); returns the verdict fields.
 
     Frequencies of every plane and block are pooled (within and across colour channels), as
-    the paper does; each policy spec is tested with its own S_b and M_b.
+    the paper does; each policy spec is tested with its own S_b and M_b. ``row_means``: each
+    plane's `column_row_means`, when already computed.
     """
-    pooled = [block_peaks_hz(p, config) for p in planes.values()]
+    pooled = [block_peaks_hz(p, config, None if row_means is None else row_means[k])
+              for k, p in planes.items()]
     freqs = np.unique(np.concatenate(pooled)) if pooled else np.zeros(0)
     best = {"protected": False, "policy": None, "matches": 0, "required": 0, "spec": None,
             "margin": -math.inf}

@@ -104,6 +104,10 @@ class ModelFit:
         not measured (no colour planes, or rho below FIT_RHO_FLOOR).
     domain : str
         Where the fit was made (``"linear"``: linear light, see `refine`).
+    lookalike : tuple of float or None
+        The best stationary square wave's frequency (cycles per row), duty, phase and
+        exposure (cycles), as `numerics.lookalike_fit` found it (None: not fitted); kept for
+        the figure, not serialised.
     """
 
     spec: str
@@ -118,6 +122,7 @@ class ModelFit:
     n_periods: float
     chroma_leak: float | None = None
     domain: str = "linear"
+    lookalike: tuple[float, float, float, float] | None = None
 
     @property
     def gain(self) -> float:

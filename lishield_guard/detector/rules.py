@@ -10,14 +10,17 @@ one typed stage result (`results.SweepResult`, `results.FoldResult`, `fit.ModelF
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from lishield_guard.config import FIT_RHO_FLOOR, PERIODIC_MIN_PERIODS, DetectorConfig
 from lishield_guard.detector.results import FoldResult, ModelFit, SweepResult
 
-__all__ = ["fit_passes", "fit_rule", "fold_passes", "fold_rule", "grid_passes", "grid_rule",
-           "sweep_passes", "tone_check_on", "tone_fit_confirms", "tone_rule"]
+__all__ = ["FitPath", "fit_passes", "fit_paths", "fit_rule", "fold_passes", "fold_rule",
+           "grid_passes", "grid_rule", "sweep_passes", "tone_check_on", "tone_fit_confirms",
+           "tone_rule"]
 
 
 def _off(value) -> float | np.ndarray:
@@ -36,23 +39,60 @@ def grid_rule(rho, rho_lookalike, coherence_t, det: DetectorConfig):
             & (coherence_t >= det.sweep.min_coherence))
 
 
+@dataclass(frozen=True)
+class FitPath:
+    """One way for an exact-model fit to pass `fit_rule`.
+
+    Attributes
+    ----------
+    name : str
+        In words (``"general"``, ``">= 2 periods"``, ``"colour-verified"``).
+    applies : callable
+        ``applies(n_periods, chroma_leak)``: whether the path is open to a fit (numbers or
+        arrays; ``chroma_leak`` inf when not measured).
+    min_rho, min_gain : float
+        What rho and the gain over the look-alike must reach on it.
+    """
+
+    name: str
+    applies: Callable
+    min_rho: float
+    min_gain: float
+
+
+def fit_paths(det: DetectorConfig) -> list[FitPath]:
+    """The exact fit's ways to pass (an optional path set to None is not listed): the general
+    one; with at least `config.PERIODIC_MIN_PERIODS` pattern periods in the frame, the
+    ``_periodic`` thresholds; for an RGB channel whose colour was measured and points at its
+    own plane (``chroma_leak <= fit.max_leak_rgb``), the ``_rgb`` thresholds."""
+    f = det.fit
+    paths = [FitPath("general", lambda n_periods, leak: True, f.min_rho, f.min_gain)]
+    if f.min_gain_periodic is not None:
+        paths.append(FitPath(f">= {PERIODIC_MIN_PERIODS:g} periods",
+                             lambda n_periods, leak: n_periods >= PERIODIC_MIN_PERIODS,
+                             f.min_rho_periodic, f.min_gain_periodic))
+    if f.max_leak_rgb is not None:
+        paths.append(FitPath("colour-verified",
+                             lambda n_periods, leak: np.isfinite(leak) & (leak <= f.max_leak_rgb),
+                             f.min_rho_rgb, f.min_gain_rgb))
+    return paths
+
+
 def fit_rule(rho, gain, coherence_t, n_periods, chroma_leak, det: DetectorConfig):
     """Exact-model fit, with the sweep and the fit on and coherence t >=
     ``sweep.min_coherence``: rho and gain reach ``fit.min_rho`` and ``fit.min_gain``; or the
     frame holds at least `config.PERIODIC_MIN_PERIODS` pattern periods and rho and gain reach
     the ``_periodic`` thresholds; or (an RGB channel whose colour was measured:
     ``chroma_leak`` finite, inf when not measured) the leak is at most ``fit.max_leak_rgb``
-    and rho and gain reach the ``_rgb`` thresholds. An optional path set to None is off."""
+    and rho and gain reach the ``_rgb`` thresholds (`fit_paths`). An optional path set to
+    None is off."""
     if det.fit is None or det.sweep is None:
         return _off(rho)
-    gain_periodic = math.inf if det.fit.min_gain_periodic is None else det.fit.min_gain_periodic
-    max_leak = -math.inf if det.fit.max_leak_rgb is None else det.fit.max_leak_rgb
-    return ((coherence_t >= det.sweep.min_coherence)
-            & (((rho >= det.fit.min_rho) & (gain >= det.fit.min_gain))
-               | ((n_periods >= PERIODIC_MIN_PERIODS) & (rho >= det.fit.min_rho_periodic)
-                  & (gain >= gain_periodic))
-               | (np.isfinite(chroma_leak) & (chroma_leak <= max_leak)
-                  & (rho >= det.fit.min_rho_rgb) & (gain >= det.fit.min_gain_rgb))))
+    ok = _off(rho)
+    for path in fit_paths(det):
+        ok = ok | (path.applies(n_periods, chroma_leak) & (rho >= path.min_rho)
+                   & (gain >= path.min_gain))
+    return (coherence_t >= det.sweep.min_coherence) & ok
 
 
 def tone_rule(rho, gain, coherence_t, det: DetectorConfig):
