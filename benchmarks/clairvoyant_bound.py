@@ -41,7 +41,7 @@ import numpy as np
 from lishield_guard import load_config
 from lishield_guard.decode import decode
 from lishield_guard.detector.numerics import _highpass, linear_common, linearise
-from lishield_guard.detector.pipeline import analyse_plane
+from lishield_guard.detector.search import analyse_plane
 from lishield_guard.spec import get_preset
 from lishield_guard.stats import clopper_pearson
 from lishield_guard.threads import one_thread_per_worker

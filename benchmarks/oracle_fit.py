@@ -74,7 +74,7 @@ def main() -> int:
         m = spec.n_tones
         dec = decode(args.dataset / it["file"], limits=cfg.limits, fast=det.profiles.fast_decode,
                      max_rows=det.profiles.max_decode_rows)
-        from lishield_guard.detector.pipeline import (
+        from lishield_guard.detector.search import (
             _period_range_rows,
             analyse_plane,
             scaled_detector,

@@ -33,7 +33,7 @@ def _init(config_path: str | None, overrides: dict) -> None:
     one_thread_per_worker()
     import dataclasses
 
-    from lishield_guard.video.settings import VideoConfig
+    from lishield_guard.settings import VideoConfig
 
     cfg = load_config(config_path) if config_path else load_config()
     vcfg = dataclasses.replace(getattr(cfg, "video", None) or VideoConfig(), **overrides)

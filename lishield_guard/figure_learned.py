@@ -1,11 +1,11 @@
 """The figure of a default-profile (learned) verdict: what the network saw and what decided.
 
-Three panels, rebuilt from the image and the verdict's evidence with the detector's own
-functions (`detector.decision.measure`): the logit of every window against the threshold, the
-deciding window's whitened coherent spectrum on the log-frequency grid with the best-fitting
-spec's tones marked, and the deciding column range's row profile (log, high-
-passed), so a person can see the stripes the network scored. matplotlib is used through its
-object-oriented API only (threads of the service).
+Three panels, drawn from the record the decision used (`profiles.learned.LearnedEvidence`:
+no second decode, measure or rule): the logit of every window against the threshold, the
+deciding window's whitened coherent spectrum on the log-frequency grid with the named spec's
+tones marked, and the deciding column range's spectrum in each quarter of the rows (a
+barcode's tones take turns from slot to slot; a steady light's stay). matplotlib is used
+through its object-oriented API only (threads of the service).
 """
 
 from __future__ import annotations
@@ -14,34 +14,35 @@ import textwrap
 
 import numpy as np
 
+from lishield_guard.figure_text import DPI, FIGSIZE_IN
+from lishield_guard.verdict import verdict_title
+
 __all__ = ["learned_caption", "learned_figure"]
 
-FIGSIZE_IN = (11.0, 9.5)
-DPI = 100
+CHANNEL_COLOURS = {"W": "k", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
+QUARTERS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))  # row windows of the bottom panel
 
 
-def learned_caption(verdict) -> str:
-    """What `learned_figure` shows, in words."""
-    lead = ("the window that decided" if verdict.protected else "the highest-scoring window")
+def learned_caption(flagged: bool) -> str:
+    """What `learned_figure` shows, in words (``flagged``: the rule's answer)."""
+    lead = "the window that decided" if flagged else "the highest-scoring window"
     return ("Top: the network's logit for every window (axis and row range down, column range "
             "across); crosses mark those at or above the calibrated threshold. Middle: "
             f"{lead}'s whitened coherent spectrum (luma and the "
             "colour planes) on the log-frequency axis, with the tones of the configured spec "
-            "that explains it best. Bottom: that column range's row profile (log, high-passed)"
-            ": the stripes themselves.")
+            "that explains it best. Bottom: the same column range's luma spectrum in each "
+            "quarter of the rows: a barcode's tones take turns, a steady light's stay.")
 
 
-def learned_figure(source, verdict, config):
+def learned_figure(verdict, ev):
     """Build the figure of one default-profile verdict (see the module docstring).
 
     Parameters
     ----------
-    source : bytes, str, Path or ndarray
-        The image the verdict was computed on.
     verdict : Verdict
-        A verdict of the default profile (``evidence["stage"] == "learned"``).
-    config : AppConfig
-        The config of the detection.
+        A verdict of the default profile (or of a clip, for its best frame).
+    ev : LearnedEvidence
+        Its evidence: the record the decision used, the threshold, the named spec's fit.
 
     Returns
     -------
@@ -49,31 +50,15 @@ def learned_figure(source, verdict, config):
     """
     from matplotlib.figure import Figure
 
-    from lishield_guard.detector.decision import measure
-    from lishield_guard.detector.pipeline import decode_for
-    from lishield_guard.detector.spectra import (
-        CHANNELS,
-        COL_WINDOWS,
-        ROW_WINDOWS,
-        block_profiles_rgb,
-        freq_grid_cpr,
-    )
+    from lishield_guard.detector.spectra import CHANNELS, COL_WINDOWS, ROW_WINDOWS, freq_grid_cpr
 
-    ev = verdict.evidence or {}
-    decoded = decode_for(source, config)
-    pixels = decoded.rgb() if decoded.is_color else decoded.luma
-    rec = measure(pixels, config.detector)
+    rec = ev.record
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     ax_units, ax_spec, ax_rows = fig.subplots(3, 1, height_ratios=[1.0, 1.4, 1.1])
-    colour = "crimson" if verdict.protected else "seagreen"
-    title = (f"PROTECTED: policy {verdict.policy!r}" if verdict.protected
-             else "CLEAN: no policy barcode found")
-    fig.suptitle(title, fontsize=14, fontweight="bold", color=colour)
-    thr = config.detector.learned.threshold_logit
+    fig.suptitle(verdict_title(verdict), fontsize=14, fontweight="bold",
+                 color="crimson" if verdict.protected else "seagreen")
+    thr = ev.threshold_logit
     n_c = len(COL_WINDOWS)
-    if not len(rec.logits):
-        ax_units.text(0.5, 0.5, rec.undetermined or "nothing analysed", ha="center")
-        return fig
     grid_logits = rec.logits.reshape(-1, n_c)  # (axes x row windows, column windows)
     im = ax_units.imshow(grid_logits, aspect="auto", cmap="magma", interpolation="nearest")
     fig.colorbar(im, ax=ax_units, label="logit")
@@ -87,39 +72,40 @@ def learned_figure(source, verdict, config):
     ax_units.set_xlabel("column range across the lines")
     if len(hits):
         ax_units.legend(fontsize=8, loc="upper right")
-    ax_units.set_title(textwrap.fill(str(ev.get("reason", "")), 140), loc="left", fontsize=8)
+    ax_units.set_title(textwrap.fill(ev.reason, 140), loc="left", fontsize=8)
 
     w = rec.best
-    col = w % n_c
     grid = freq_grid_cpr()
     x = rec.spectra.x[w]
     for name, c in (("coh_L", "tab:purple"), ("coh_R", "tab:red"), ("coh_G", "tab:green"),
                     ("coh_B", "tab:blue")):
         ax_spec.plot(grid, x[CHANNELS.index(name)], color=c, lw=1.4 if name == "coh_L" else 0.7,
                      label=name.replace("coh_", "coherent "))
-    fit = ev.get("spec_fit") or {}
-    for ch, tones in (fit.get("tones_cpr") or {}).items():
-        for t in tones:
-            ax_spec.axvline(t, color={"W": "k", "R": "tab:red", "G": "tab:green",
-                                      "B": "tab:blue"}.get(ch, "k"), ls=":", lw=1)
+    fit = ev.spec_fit
+    if fit is not None:
+        for ch, tones in fit.tones_cpr.items():
+            for t in tones:
+                ax_spec.axvline(t, color=CHANNEL_COLOURS.get(ch, "k"), ls=":", lw=1)
+        ax_spec.set_title(f"dotted: tones of {fit.spec} at its best scale "
+                          f"(template score {round(fit.score, 3)})", loc="left", fontsize=9)
     ax_spec.set_xscale("log")
     ax_spec.set_xlabel("cycles per analysed row (log scale: the unknown row rate is a shift)")
     ax_spec.set_ylabel("ln(power / noise floor)")
     ax_spec.legend(fontsize=8, ncol=4)
-    if fit:
-        ax_spec.set_title(f"dotted: tones of {fit.get('spec')} at its best scale "
-                          f"(template score {fit.get('score')})", loc="left", fontsize=9)
 
-    axis = 0 if rec.spectra.axes[w] == "rows" else 1
-    prof = block_profiles_rgb(pixels, axes=(axis,))[axis]
-    a, z = COL_WINDOWS[col]
-    blocks = prof.shape[1]
-    seg = np.log(np.maximum(prof[:, int(a * blocks):int(z * blocks)].mean(axis=(0, 1)), 1e-3))
-    k = max(3, len(seg) // 40) | 1
-    trend = np.convolve(np.pad(seg, k // 2, mode="edge"), np.ones(k) / k, mode="valid")
-    ax_rows.plot(seg - trend, color="tab:purple", lw=0.8)
-    ax_rows.set_xlabel(f"{'row' if axis == 0 else 'column'} (as decoded)")
-    ax_rows.set_ylabel("ln(row mean), high-passed")
-    ax_rows.set_title(f"row profile of {rec.spectra.axes[w]}, column range {a:.0%}-{z:.0%}",
-                      loc="left", fontsize=9)
+    axis, (c0, c1, _, _) = rec.spectra.axes[w], rec.spectra.windows[w]
+    luma = CHANNELS.index("coh_L")
+    for q, (r0, r1) in enumerate(QUARTERS):
+        k = next((i for i, (a, win) in enumerate(zip(rec.spectra.axes, rec.spectra.windows,
+                                                     strict=True))
+                  if a == axis and win == (c0, c1, r0, r1)), None)
+        if k is not None:
+            ax_rows.plot(grid, rec.spectra.x[k][luma] + 4.0 * (len(QUARTERS) - 1 - q),
+                         color=f"C{q}", lw=0.9, label=f"lines {r0:.0%}-{r1:.0%}")
+    ax_rows.set_xscale("log")
+    ax_rows.set_xlabel("cycles per analysed row")
+    ax_rows.set_ylabel("ln(power / floor), offset by quarter")
+    ax_rows.legend(fontsize=7, ncol=4, loc="upper left")
+    ax_rows.set_title(f"{axis}, column range {c0:.0%}-{c1:.0%}: the coherent luma spectrum of "
+                      f"each quarter of the lines", loc="left", fontsize=9)
     return fig

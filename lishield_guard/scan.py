@@ -113,7 +113,7 @@ def scan_source(source: str | bytes, config: AppConfig) -> dict[str, Any]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             v = detect_media(source, config)
-        reason = v.evidence.get("reason") if isinstance(v.evidence, dict) else None
+        reason = v.evidence.reason  # the typed evidence's reason (`verdict.Evidence`)
         out: dict[str, Any] = {"status": v.status, "protected": v.protected_or_none,
                                "policy": v.policy,
                                "matches": int(v.matches), "required": int(v.required),

@@ -10,7 +10,7 @@ from fastapi import Request
 from starlette.datastructures import FormData, UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from lishield_guard.batch.types import IMAGE, SNIFF_BYTES, VIDEO, MediaKind
+from lishield_guard.batch.types import IMAGE, SNIFF_BYTES, MediaKind, kind_of_bytes
 from service.deps import ServiceState
 from service.errors import ServiceError
 from service.limits import too_large
@@ -148,7 +148,7 @@ def media_of(data: bytes, settings: ServiceSettings) -> Media:
     """
     if not data:
         raise empty_body()
-    kind = VIDEO if VIDEO.sniff(data[:SNIFF_BYTES]) else IMAGE
+    kind = kind_of_bytes(data[:SNIFF_BYTES]) or IMAGE  # the media kinds registry
     name, cap = settings.upload_cap(kind.name)
     if len(data) > cap:
         raise too_large(len(data), cap, setting=name, what=f"the {kind.name}")

@@ -9,6 +9,8 @@ from typing import Literal
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from lishield_guard.batch.types import KINDS, kind_named
+
 __all__ = ["ServiceSettings"]
 
 
@@ -100,23 +102,21 @@ class ServiceSettings(BaseSettings):
     log_level: str = "INFO"
 
     def upload_cap(self, kind: str) -> tuple[str, int]:
-        """``(setting name, bytes)``: the size cap of one upload of ``kind`` ("image" or
-        "video")."""
-        if kind == "video":
-            return "max_video_upload_bytes", self.max_video_upload_bytes
-        return "max_upload_bytes", self.max_upload_bytes
+        """``(setting name, bytes)``: the size cap of one upload of media ``kind`` (the
+        setting its entry of the media kinds registry names, `batch.types.MediaKind`)."""
+        name = kind_named(kind).upload_cap
+        return name, getattr(self, name)
 
     def time_budget(self, kind: str) -> tuple[str, float]:
-        """``(setting name, seconds)``: the time budget of one detection of ``kind``."""
-        if kind == "video":
-            return "video_timeout_s", self.video_timeout_s
-        return "detect_timeout_s", self.detect_timeout_s
+        """``(setting name, seconds)``: the time budget of one detection of media ``kind``."""
+        name = kind_named(kind).time_budget
+        return name, getattr(self, name)
 
     @property
     def max_media_bytes(self) -> int:
         """The larger upload cap: how much of a body is read before its kind is known."""
-        return max(self.max_upload_bytes, self.max_video_upload_bytes)
+        return self.media_cap()[1]
 
     def media_cap(self) -> tuple[str, int]:
-        """``(setting name, bytes)`` of `max_media_bytes`: the larger upload cap."""
-        return max(self.upload_cap("image"), self.upload_cap("video"), key=lambda c: c[1])
+        """``(setting name, bytes)`` of `max_media_bytes`: the largest upload cap."""
+        return max((self.upload_cap(k.name) for k in KINDS), key=lambda c: c[1])

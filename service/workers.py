@@ -19,7 +19,7 @@ from typing import Any
 __all__ = ["DetectionAbandoned", "Job", "WorkerCrashed", "WorkerProcesses", "check_picklable"]
 
 #: Modules the fork server imports once, so that a new worker starts in milliseconds.
-PRELOAD = ("lishield_guard", "lishield_guard.detector.pipeline", "lishield_guard.video.screen",
+PRELOAD = ("lishield_guard", "lishield_guard.profiles.learned", "lishield_guard.video.screen",
            "av", "service.workers")
 JOIN_TIMEOUT_S = 5.0  # wait for a killed process to be reaped
 

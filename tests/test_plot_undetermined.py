@@ -37,15 +37,37 @@ def test_undetermined_figure_shows_image_and_reason(arr):
     assert figure_caption(v).startswith("Left: the image")
 
 
+def _cascade(protected: bool, best) -> Verdict:
+    """A cascade verdict whose deciding candidate is ``best`` (a `SpecMatch`)."""
+    from lishield_guard.profiles.cascade import CascadeEvidence
+
+    ev = CascadeEvidence(best.reason, "rows", best, (), 1, "jpeg", {},
+                         lishield_guard.default_config().detector)
+    return Verdict(protected, "p" if protected else None, 1, 1, evidence=ev, profile="cascade")
+
+
 def test_captions_follow_the_stage():
-    first = Verdict(False, None, 0, 2, evidence={"stage": "first stage",
-                                                 "reason": "first stage: no stripes",
-                                                 "best": {"n_matched": 0}})
-    assert "first stage cleared it" in figure_caption(first)
-    tones = Verdict(True, "p", 2, 2, evidence={"stage": "tones", "best": {"n_matched": 2}})
-    assert "no template was fitted" in figure_caption(tones)
-    fit = Verdict(True, "p", 1, 1, evidence={"stage": "sweep", "best": {
-        "sweep": {"period_rows": 40.0, "fit": {"period_rows": 40.2}}}})
-    assert "exact capture-model fit fitted" in figure_caption(fit)
-    rejected = Verdict(False, None, 0, 1, evidence={"best": {"fold": {"period_rows": 30.0}}})
-    assert "rejected pattern folding" in figure_caption(rejected)
+    from lishield_guard.detector.results import (
+        FoldMatch,
+        FoldResult,
+        ModelFit,
+        SpecMatch,
+        Stage,
+        SweepMatch,
+        SweepResult,
+    )
+
+    def match(n_matched=0, fold=None, sweep=None, stage=Stage.TONES):
+        return SpecMatch("table1-seq1", 0.0, {}, {}, n_matched, 2, 0.0, 0, False, "r",
+                         fold=fold, sweep=sweep, stage=stage)
+
+    assert "first stage cleared it" in figure_caption(_cascade(False, match(stage=Stage.FIRST)))
+    assert "no template was fitted" in figure_caption(_cascade(True, match(2)))
+    fit = ModelFit("table1-seq1", "W", 0.95, 0.5, 40.2, 1.0, 0.3, 0.5, 9.0, 2.4)
+    sweep = SweepResult(SweepMatch("table1-seq1", 0.8, 0.4, 40.0, 1.0, 0.5, 9.0, 2.4), "W", "",
+                        fit=fit)
+    assert "exact capture-model fit fitted" in figure_caption(
+        _cascade(True, match(sweep=sweep, stage=Stage.EXACT_FIT)))
+    fold = FoldResult(FoldMatch("table1-seq1", 0.9, 30.0, 1.0, 40.0, 3.0), 0.9, 0.5, 40.0, 1, "")
+    assert "rejected pattern folding" in figure_caption(
+        _cascade(False, match(fold=fold, stage=Stage.FOLD)))

@@ -2,10 +2,11 @@
 
 An entry's key is derived from the function that computed it (module and name), the source
 file it was computed from (absolute path, size, modification time), the settings passed to it
-(their ``repr``), the run's own settings and a hash of the library's source code. Editing the
-code or a setting makes new keys; nothing is bumped by hand. A cache without a folder (the
-``--no-cache`` case) computes every time and stores nothing. Entries are written atomically
-(a temporary file, then a rename), so a cancelled run leaves no half-written entry.
+(their ``repr``), the run's own settings and a hash of the library's source code and shipped
+data files (decision weights, their card, the default config). Editing the code, retraining
+the weights or changing a setting makes new keys; nothing is bumped by hand. A cache without
+a folder (the ``--no-cache`` case) computes every time and stores nothing. Entries are written
+atomically (a temporary file, then a rename), so a cancelled run leaves no half-written entry.
 """
 
 from __future__ import annotations
@@ -17,12 +18,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lishield_guard.data_files import data_digest
+
 __all__ = ["EvidenceCache", "code_version"]
 
 
 def code_version() -> str:
-    """Hash of the library's source (every module but the command shells): an entry is only
-    reused by the code that made it."""
+    """Hash of the library's source (every module but the command shells) and of its shipped
+    data (`data_files.data_digest`): an entry is only reused by the code and the weights that
+    made it."""
     root = Path(__file__).resolve().parent.parent
     h = hashlib.sha1()
     for f in sorted(root.rglob("*.py")):
@@ -31,6 +35,7 @@ def code_version() -> str:
             continue
         h.update(rel.encode())
         h.update(f.read_bytes())
+    h.update(data_digest().encode())
     return h.hexdigest()[:12]
 
 

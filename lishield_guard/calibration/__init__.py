@@ -17,12 +17,13 @@ The modules, in the order a run uses them:
 Flow
 ----
 1. Per image, once (the expensive part): `image_record` decodes and profiles the image
-   (`collect_evidence`) and, for the paper profile, caches `block_peaks_hz` per (n_b, M_p).
+   (`profiles.cascade.collect_record`) and, for the paper profile, caches `block_peaks_hz`
+   per (n_b, M_p); for the learned profile, `learned_record` keeps the image logit.
 2. Per image and per *match combo* (peak_false_prob, tone_rel_tol, min_occupancy,
    max_occupancy), `candidate_table` runs the tone matcher on every (axis, spec) candidate and
    keeps (n_matched, purity, switches, colour channels hit). The remaining decision parameters
    (min_purity, min_tones, min_tones_rgb) only gate the final verdict and never move the fitted
-   scale, so `default_scores` applies them to these tables in microseconds. `paper_scores`
+   scale, so `cascade_scores` applies them to these tables in microseconds. `paper_scores`
    sweeps T_b and gamma over the cached peak frequencies.
 3. `summarise` turns per-image verdicts into rates: image-level false-alarm rate on the clean set
    with its exact one-sided Clopper-Pearson 95 % upper bound, false candidate matches (paper
@@ -54,7 +55,7 @@ t = 1e-3 (n = 2994 gives 1.0003e-3); `images_needed` also answers for k > 0 (474
 false alarm). The two-sided 95 % interval (``level=0.95`` in `lishield_guard.stats`) is also
 reported; its upper end needs n >= ln(0.025) / ln(1 - t) = 3688 for t = 1e-3.
 
-Null model (default profile)
+Null model (cascade profile)
 ----------------------------
 Consider one track (window length w, F frames) of one plane whose frames each carry, with
 probability q, a significant peak at a frequency uniform in log over the track band of log-width
@@ -98,12 +99,12 @@ from lishield_guard.calibration.evidence import (
     PURITY,
     SWITCHES,
     VALID,
-    DefaultGrid,
+    CascadeGrid,
     LearnedGrid,
     PaperGrid,
     Setting,
     candidate_table,
-    default_scores,
+    cascade_scores,
     fold_protected,
     image_record,
     learned_record,
@@ -145,7 +146,7 @@ __all__ = [
     "CalibrationError",
     "CalibrationResult",
     "Claim",
-    "DefaultGrid",
+    "CascadeGrid",
     "IS_RGB",
     "LearnedGrid",
     "N_MATCHED",
@@ -158,7 +159,7 @@ __all__ = [
     "VALID",
     "candidate_table",
     "claim",
-    "default_scores",
+    "cascade_scores",
     "far_upper_bound",
     "fold_protected",
     "group_labels",

@@ -12,9 +12,7 @@ import numpy as np
 
 from lishield_guard.calibration.evidence import _specs
 from lishield_guard.config import AppConfig, DetectorConfig
-from lishield_guard.detector.pipeline import (
-    scaled_detector,
-)
+from lishield_guard.detector.search import scaled_detector
 from lishield_guard.detector.tones import scale_range_cpr_per_hz
 
 CONFIDENCE = 0.95

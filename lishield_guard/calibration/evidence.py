@@ -16,19 +16,15 @@ import numpy as np
 from lishield_guard.config import AppConfig, DetectorConfig
 from lishield_guard.decode import decode
 from lishield_guard.detector.paper import block_peaks_hz, count_ratio_matches, required_matches
-from lishield_guard.detector.pipeline import (
-    collect_evidence,
-    decode_for,
-    fold_fits,
-    scaled_detector,
-    screen_specs,
-    spec_planes,
-    sweep_fits,
-)
 from lishield_guard.detector.results import SweepResult
 from lishield_guard.detector.rules import fit_rule, fold_rule, grid_rule, tone_check_on, tone_rule
+from lishield_guard.detector.search import scaled_detector, screen_specs, spec_planes
 from lishield_guard.detector.tones import match_spec
+from lishield_guard.profiles import cascade, learned, paper
+from lishield_guard.verdict import Timer
 
+#: The profiles calibration sweeps, in the order reports list them (registry names).
+PROFILES = (learned.NAME, cascade.NAME, paper.NAME)
 # candidate table columns
 N_MATCHED, PURITY, SWITCHES, CH_HIT, IS_RGB, VALID = range(6)
 AXES = ("rows", "columns")
@@ -43,8 +39,8 @@ COUNT_KEYS = ("paper.max_peaks", "tones.min_tones", "tones.min_tones_rgb")
 
 
 @dataclass(frozen=True)
-class DefaultGrid:
-    """Values swept for the default profile (all unitless), named after the settings they
+class CascadeGrid:
+    """Values swept for the cascade profile (all unitless), named after the settings they
     sweep (``peak_false_prob``: ``tones.peak_false_prob``; `SWEEP_KEYS`)."""
 
     peak_false_prob: tuple[float, ...] = (1e-3, 1e-4, 1e-5)
@@ -88,7 +84,7 @@ class DefaultGrid:
 
 @dataclass(frozen=True)
 class LearnedGrid:
-    """Thresholds swept for the default (learned) profile.
+    """Thresholds swept for the learned profile (`profiles.learned`).
 
     Candidates are every tuning clean logit plus ``nudge`` (each admits one false alarm fewer)
     and ``n_spread`` quantiles of the clean logits, but none below the *tail threshold*: the
@@ -145,21 +141,19 @@ def learned_scores(logits_clean: np.ndarray, logits_pos: np.ndarray,
     """
     from lishield_guard.detector.decision import rule_at
 
-    settings = [Setting("default", (("learned.threshold_logit", float(t)),))
+    settings = [Setting(learned.NAME, (("learned.threshold_logit", float(t)),))
                 for t in thresholds]
     return (settings, rule_at(np.asarray(logits_clean)[None, :], thresholds[:, None]),
             rule_at(np.asarray(logits_pos)[None, :], thresholds[:, None]))
 
 
 def learned_record(source, config: AppConfig) -> dict:
-    """The default profile's per-image measurement for calibration: the image logit and the
-    milliseconds decode + measurement took (``logit`` is None for an undetermined image)."""
-    from lishield_guard.detector.decision import measure
-
+    """The learned profile's per-image measurement for calibration (its own `decode` and
+    `measure`): the image logit and the milliseconds decode + measurement took (``logit`` is
+    None for an undetermined image)."""
     t0 = time.perf_counter()
-    decoded = decode_for(source, config)
-    rec = measure(decoded.rgb() if decoded.is_color else decoded.luma, config.detector)
-    return {"logit": None if rec.undetermined else rec.logit,
+    rec = learned.measure(learned.decode(source, config), config, Timer())
+    return {"logit": None if rec.why else rec.decision.logit,
             "learned_ms": (time.perf_counter() - t0) * 1e3}
 
 
@@ -212,7 +206,7 @@ def _specs(config: AppConfig) -> list:
 def screened_candidates(evidence, config: AppConfig) -> np.ndarray:
     """Per `candidate_table` column (axis, spec): does the first stage let it be searched?
 
-    As `pipeline.decide`: a spec goes on when any plane carrying its channels passes
+    As `cascade.decide_record`: a spec goes on when any plane carrying its channels passes
     `screen.screen_plane` at ``screen_false_prob`` / ``screen_min_frames`` (not swept); a spec
     that fails it is never protected, by tone tracks, folding or the period sweep.
 
@@ -238,17 +232,17 @@ def _max_sig_frames(planes: dict) -> int:
                default=0)
 
 
-def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
+def candidate_table(evidence, config: AppConfig, grid: CascadeGrid
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Match results of every (axis, spec) candidate for every match combo of ``grid``.
 
     Parameters
     ----------
-    evidence : Evidence
-        From `collect_evidence` (any peak_false_prob; it is re-judged per combo).
+    evidence : CascadeRecord
+        From `cascade.collect_record` (any peak_false_prob; it is re-judged per combo).
     config : AppConfig
         Base config (policies, fixed detector fields).
-    grid : DefaultGrid
+    grid : CascadeGrid
         Swept values.
 
     Returns
@@ -261,7 +255,7 @@ def candidate_table(evidence, config: AppConfig, grid: DefaultGrid
 
     Notes
     -----
-    Mirrors `pipeline.decide`: a candidate is protected when n_matched >= need,
+    Mirrors `cascade.decide_record`: a candidate is protected when n_matched >= need,
     purity >= min_purity, switches >= 1 and, for RGB specs, >= 2 channels are hit.
     A plane whose tracks hold fewer than 2 significant frames cannot hit any tone
     (`tones.MIN_FRAMES`), and a candidate the first stage clears (`screened_candidates`) is
@@ -311,7 +305,7 @@ def paper_peaks(decoded, config: AppConfig, grid: PaperGrid) -> tuple[dict, dict
     peaks, ms = {}, {}
     for n_b, m_p in itertools.product(grid.n_b, grid.max_peaks):
         t0 = time.perf_counter()
-        det = config.detector.with_values({"profile": "paper", "paper.n_block_rows": n_b,
+        det = config.detector.with_values({"profile": paper.NAME, "paper.n_block_rows": n_b,
                                            "paper.n_block_cols": n_b, "paper.max_peaks": m_p})
         found = [block_peaks_hz(p, det) for p in planes]
         peaks[(n_b, m_p)] = np.unique(np.concatenate(found)) if found else np.zeros(0)
@@ -320,23 +314,23 @@ def paper_peaks(decoded, config: AppConfig, grid: PaperGrid) -> tuple[dict, dict
 
 
 def image_record(source, config: AppConfig, *, paper_grid: PaperGrid | None = None) -> dict:
-    """The expensive per-image part: cascade-profile Evidence and paper peak frequencies.
+    """The expensive per-image part: the cascade's record and paper peak frequencies.
 
     Returns
     -------
     dict
-        ``evidence`` (Evidence), ``evidence_ms``, ``paper_peaks`` {(n_b, M_p): Hz array},
-        ``paper_ms`` {(n_b, M_p): ms}, ``paper_decode_ms``.
+        ``evidence`` (`profiles.cascade.CascadeRecord`), ``evidence_ms``, ``paper_peaks``
+        {(n_b, M_p): Hz array}, ``paper_ms`` {(n_b, M_p): ms}, ``paper_decode_ms``.
     """
     det = config.detector
     t0 = time.perf_counter()
-    decoded = decode_for(source, config)
-    evidence = collect_evidence(decoded, config)
-    # fits of specs the first stage clears never decide (pipeline.decide skips them)
+    decoded = cascade.decode(source, config)
+    evidence = cascade.collect_record(decoded, config)
+    # fits of specs the first stage clears never decide (cascade.decide_record skips them)
     screened = screened_candidates(evidence, config)
-    folds = [f for axis, _, f in fold_fits(evidence, config)
+    folds = [f for axis, _, f in cascade.fold_fits(evidence, config)
              if screened[_candidate_index(axis, f.spec, config)]]
-    sweeps = [(e, i) for axis, _, e in (sweep_fits(evidence, config)
+    sweeps = [(e, i) for axis, _, e in (cascade.sweep_fits(evidence, config)
                                         if det.sweep is not None else [])
               if screened[i := _candidate_index(axis, e.spec, config)]]
     rec = {"evidence": evidence, "evidence_ms": (time.perf_counter() - t0) * 1e3,
@@ -415,7 +409,7 @@ def sweep_protected(sweeps: list[np.ndarray], det: DetectorConfig) -> np.ndarray
 FOLD_MIN_RHO = (0.85, 0.9, 0.95)  # pattern-folding thresholds swept with every setting
 
 
-def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray] | None = None,
+def cascade_scores(tables: np.ndarray, grid: CascadeGrid, folds: list[np.ndarray] | None = None,
                    det: DetectorConfig | None = None,
                    fold_min_rho: tuple[float, ...] = FOLD_MIN_RHO,
                    sweeps: list[np.ndarray] | None = None
@@ -426,7 +420,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
     ----------
     tables : ndarray of shape (n_images, n_combos, n_candidates, 6)
         Stacked `candidate_table` outputs.
-    grid : DefaultGrid
+    grid : CascadeGrid
         The grid the tables were computed for.
     folds : list of ndarray (k, 3), optional
         Per image, the unthresholded fold fits (rho, rho_lookalike, fold_snr); with ``det``
@@ -481,7 +475,7 @@ def default_scores(tables: np.ndarray, grid: DefaultGrid, folds: list[np.ndarray
             n_enough = enough.sum(axis=1)
             for fold_params, fold_ok in fold_variants:
                 si = len(settings)
-                settings.append(Setting("cascade", (
+                settings.append(Setting(cascade.NAME, (
                     ("tones.peak_false_prob", fp), ("tones.rel_tol", tol),
                     ("tones.min_occupancy", occ_lo), ("tones.max_occupancy", occ_hi),
                     ("tones.min_purity", mp), ("tones.min_tones", mt),
@@ -495,7 +489,7 @@ def paper_scores(peaks: list[dict], config: AppConfig, grid: PaperGrid
                  ) -> tuple[list[Setting], np.ndarray, np.ndarray, np.ndarray]:
     """Verdicts of every paper-profile setting from cached per-image peak frequencies.
 
-    Returns the same four items as `default_scores`; ``cand_hits`` counts false ratio matches
+    Returns the same four items as `cascade_scores`; ``cand_hits`` counts false ratio matches
     m_b (summed over specs) and ``cand_total`` the tested ratios (pairs x specs) per image.
     """
     specs = _specs(config)
@@ -512,7 +506,7 @@ def paper_scores(peaks: list[dict], config: AppConfig, grid: PaperGrid
             for g in grid.gamma:
                 det = config.detector.with_values({"paper.gamma": g})
                 need = np.array([required_matches(s, det) for s in specs])
-                settings.append(Setting("paper", (("paper.n_b", n_b), ("paper.max_peaks", m_p),
+                settings.append(Setting(paper.NAME, (("paper.n_b", n_b), ("paper.max_peaks", m_p),
                                                   ("paper.ratio_tol", tol),
                                                   ("paper.gamma", g))))
                 prot.append((m_b >= need[None, :]).any(axis=1))

@@ -7,7 +7,9 @@ import math
 from pathlib import Path
 
 from lishield_guard.calibration.bounds import claim
+from lishield_guard.calibration.evidence import PROFILES
 from lishield_guard.calibration.split import stratum_key
+from lishield_guard.profiles import cascade, paper
 
 __all__ = ["config_header", "console_report", "plan_text", "split_line", "write_report"]
 
@@ -156,27 +158,27 @@ def _figures(report: Path, summaries, best, cert, info: dict) -> dict:
 
     paths = {}
     # heatmaps (paper Figs. 21-22 analogues), tuning part
-    fixed_d = best.setting.as_dict if best.setting.profile == "cascade" else next(
-        (s.setting.as_dict for s in summaries if s.setting.profile == "cascade"), {})
-    paper_best = max((s for s in summaries if s.setting.profile == "paper"),
+    fixed_d = best.setting.as_dict if best.setting.profile == cascade.NAME else next(
+        (s.setting.as_dict for s in summaries if s.setting.profile == cascade.NAME), {})
+    paper_best = max((s for s in summaries if s.setting.profile == paper.NAME),
                      key=lambda s: (s.far_upper <= info["target_far"], s.detection), default=None)
     panels = []
     if fixed_d:
         tol, fp = "tones.rel_tol", "tones.peak_false_prob"
-        panels += [("cascade", fixed_d, tol, fp, "false_match_fraction",
+        panels += [(cascade.NAME, fixed_d, tol, fp, "false_match_fraction",
                     "cascade: false candidate matches (>= min_tones) on clean"),
-                   ("cascade", fixed_d, tol, fp, "far_upper", "cascade: FAR 95% upper bound"),
-                   ("cascade", fixed_d, tol, fp, "detection", "cascade: detection rate"),
-                   ("cascade", fixed_d, "tones.min_purity", "tones.min_occupancy",
+                   (cascade.NAME, fixed_d, tol, fp, "far_upper", "cascade: FAR 95% upper bound"),
+                   (cascade.NAME, fixed_d, tol, fp, "detection", "cascade: detection rate"),
+                   (cascade.NAME, fixed_d, "tones.min_purity", "tones.min_occupancy",
                     "detection", "cascade: detection rate")]
     if paper_best is not None:
         pd_ = paper_best.setting.as_dict
         tol = "paper.ratio_tol"
-        panels += [("paper", pd_, tol, "paper.n_b", "false_match_fraction",
+        panels += [(paper.NAME, pd_, tol, "paper.n_b", "false_match_fraction",
                     "paper: fraction of false ratio matches (Fig. 21)"),
-                   ("paper", pd_, tol, "paper.gamma", "far", "paper: clean FAR (Fig. 22)"),
-                   ("paper", pd_, tol, "paper.gamma", "detection", "paper: detection"),
-                   ("paper", pd_, tol, "paper.max_peaks", "detection", "paper: detection")]
+                   (paper.NAME, pd_, tol, "paper.gamma", "far", "paper: clean FAR (Fig. 22)"),
+                   (paper.NAME, pd_, tol, "paper.gamma", "detection", "paper: detection"),
+                   (paper.NAME, pd_, tol, "paper.max_peaks", "detection", "paper: detection")]
     if panels:
         n_cols = 4
         n_rows = math.ceil(len(panels) / n_cols)
@@ -193,7 +195,7 @@ def _figures(report: Path, summaries, best, cert, info: dict) -> dict:
 
     # ROC-style: detection vs FAR upper bound on the tuning part, and the certified point
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for prof, marker in (("default", "o"), ("cascade", "^"), ("paper", "s")):
+    for prof, marker in zip(PROFILES, "o^s", strict=True):
         pts = [(s.far_upper, s.detection) for s in summaries if s.setting.profile == prof]
         if pts:
             x, y = zip(*pts, strict=True)
@@ -340,7 +342,7 @@ def _summary_md(summaries, best, cert, info: dict, paths: dict) -> str:
         lines.append(f"| {s.setting.label()} | {s.false_alarms}/{s.n_clean} | "
                      f"{s.far_upper:.3g} | {s.detection:.3f} | {s.false_match_fraction:.3g} | "
                      f"{s.time_ms_per_image:.0f} |")
-    for prof in ("default", "cascade", "paper"):
+    for prof in PROFILES:
         cand = [s for s in summaries if s.setting.profile == prof]
         if cand:
             top = max(cand, key=lambda s: (s.far_upper <= tf, s.detection))

@@ -7,6 +7,7 @@ by `lishield_guard.batch.list_files` (the types `scan` reads), measured in the p
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 import time
@@ -28,11 +29,12 @@ from lishield_guard.batch import (
 from lishield_guard.batch.pool import progress_bar
 from lishield_guard.calibration.bounds import claim, images_needed, null_model_far
 from lishield_guard.calibration.evidence import (
-    DefaultGrid,
+    PROFILES,
+    CascadeGrid,
     LearnedGrid,
     PaperGrid,
     candidate_table,
-    default_scores,
+    cascade_scores,
     image_record,
     learned_record,
     learned_scores,
@@ -43,11 +45,14 @@ from lishield_guard.calibration.report import config_header, plan_text, write_re
 from lishield_guard.calibration.selection import group_labels, select_setting, summarise
 from lishield_guard.calibration.split import source_groups, source_keys, split_parts, stratum_key
 from lishield_guard.config import AppConfig, dump_config, load_config
+from lishield_guard.detector.decision import decision_model
+from lishield_guard.profiles import cascade, learned, paper
 from lishield_guard.stats import clopper_pearson
 
-__all__ = ["PROFILES", "CalibrationError", "CalibrationResult", "list_images", "plan", "run"]
+__all__ = ["PROFILES", "CalibrationError", "CalibrationResult", "calibration_cache",
+           "list_images", "plan", "run"]
 
-PROFILES = ("default", "cascade", "paper")
+PATTERN_PROFILES = frozenset({cascade.NAME, paper.NAME})  # measured by `image_record`
 NULL_MODEL_SAMPLE = 300  # clean images the null model is evaluated on
 
 
@@ -205,10 +210,10 @@ def _work(path: str) -> dict:
         st["cache"]
     out: dict = {"path": path, "error": None, "cached": True}
     try:
-        if "default" in want:
+        if learned.NAME in want:
             lrn, hit = cache.get(learned_record, path, compute=lambda: learned_record(path, cfg))
             out.update(lrn, cached=out["cached"] and hit)
-        if want & {"cascade", "paper"}:
+        if want & PATTERN_PROFILES:
             rec, hit = cache.get(image_record, path, pgrid,
                                  compute=lambda: image_record(path, cfg, paper_grid=pgrid))
             (table, match_ms), _ = cache.get(
@@ -230,7 +235,7 @@ def _null_work(args) -> dict:
     rec, _ = st["cache"].get(image_record, path, st["paper_grid"], compute=lambda: None)
     if rec is None:
         return {}
-    app = type(cfg)(detector=det, limits=cfg.limits, policies=cfg.policies)
+    app = dataclasses.replace(cfg, detector=det)
     measured = null_model_far(rec["evidence"], app)
     noise = null_model_far(rec["evidence"], app, q=det.tones.peak_false_prob)
     return {"measured": measured, "noise": noise}
@@ -255,7 +260,7 @@ def _measure(fn, args: list, state: dict, jobs: int, desc: str, progress: bool) 
 def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
         base: AppConfig, target_far: float, certify: Path | None = None,
         certify_fraction: float = 0.5, split_seed: int = 0, jobs: int = 1,
-        profiles: frozenset[str] = frozenset({"default"}), use_cache: bool = True,
+        profiles: frozenset[str] = frozenset({learned.NAME}), use_cache: bool = True,
         quick: bool = False, progress: bool = False, command: str = "",
         on_warning: Callable[[str], None] = print) -> CalibrationResult:
     """Sweep decision thresholds on a tuning part, certify the chosen setting on held-out images,
@@ -270,7 +275,9 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
     out, report : Path
         Config TOML to write; report folder (summary, plots, tables, evidence cache).
     base : AppConfig
-        Config the chosen setting is applied to (its detector profile is set to default).
+        Config the chosen setting is applied to (its detector profile is set to the learned
+        one); every group it holds (``[video]`` too) is written back unchanged but for the
+        chosen setting and, for a learned threshold, the weights' digest beside it.
     target_far : float
         Target image false-alarm rate in (0, 1), shown by the exact one-sided 95 % bound on the
         certification part.
@@ -282,8 +289,8 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
         Seed of the split.
     jobs : int
         Worker processes.
-    profiles : frozenset of {"default", "cascade", "paper"}
-        Profiles swept.
+    profiles : frozenset of str
+        Profiles swept (names in `PROFILES`).
     use_cache : bool
         Read and write the evidence cache under ``report / "cache"``.
     quick, progress, command
@@ -301,14 +308,12 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
         When a set or a part is empty, or every image of a part failed.
     """
     t_start = time.perf_counter()
-    base = AppConfig(detector=base.detector.replace(profile="default"), limits=base.limits,
-                     policies=base.policies, source=base.source)
+    base = dataclasses.replace(base, detector=base.detector.replace(profile=learned.NAME))
     want = frozenset(profiles)
-    grid, pgrid = DefaultGrid(), PaperGrid()
+    grid, pgrid = CascadeGrid(), PaperGrid()
     pt = _parts(clean, positives, certify, certify_fraction, split_seed, on_warning)
     report.mkdir(parents=True, exist_ok=True)
-    cache = EvidenceCache(report / "cache" if use_cache else None, repr(base.detector),
-                          repr(base.policies), repr(base.limits))
+    cache = calibration_cache(report / "cache" if use_cache else None, base)
     state = {"cfg": base, "grid": grid, "paper_grid": pgrid, "cache": cache, "want": want}
 
     # --- per-image evidence (cached), clean images in the order tuning, certification
@@ -341,7 +346,7 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
     cert_claim = claim(cert.false_alarms, cert.n_clean, target_far)
     chosen_det = best.setting.apply(base.detector)
     null = None
-    if best.setting.profile == "cascade" and use_cache:
+    if best.setting.profile == cascade.NAME and use_cache:
         null = _null_model(ok_c, n_tc, chosen_det, state, jobs, progress)
 
     split = _split_info(pt, ok_c, ok_p, n_tc, n_tp, certify, certify_fraction, split_seed)
@@ -361,7 +366,10 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
     header = config_header(date=date, clean=clean, positives=positives, base=base, best=best,
                            split=split, parts=parts, target_far=target_far, met=met,
                            quick=quick, cert_claim=cert_claim)
-    cfg_out = AppConfig(detector=chosen_det, limits=base.limits, policies=base.policies)
+    if best.setting.profile == learned.NAME:  # the threshold is bound to these weights
+        chosen_det = chosen_det.replace(learned=chosen_det.learned.replace(
+            model_digest=decision_model(chosen_det).digest))
+    cfg_out = dataclasses.replace(base, detector=chosen_det, source=str(out), header="")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(dump_config(cfg_out, header=header), encoding="utf-8")
     load_config(out)  # what we ship must load
@@ -377,7 +385,7 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
             "evidence_s": t_evidence, "total_s": time.perf_counter() - t_start,
             "cached": sum(1 for r, _, _ in ok_c + ok_p if r.get("cached")),
             "command": command, "split": split, "parts": parts,
-            "grid": {"default": grid.__dict__, "paper": pgrid.__dict__}}
+            "grid": {cascade.NAME: grid.__dict__, paper.NAME: pgrid.__dict__}}
     paths = write_report(report, tuning, best, cert, info)
     with open(report / "certification.json", "w", encoding="utf-8") as fh:
         json.dump({k: info[k] for k in ("split", "parts", "target_far", "met", "tune_met",
@@ -386,12 +394,21 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
     return CalibrationResult(out, paths, info, best, cert, len(tuning), met, cert_claim.reason)
 
 
+def calibration_cache(folder: Path | None, base: AppConfig) -> EvidenceCache:
+    """The evidence cache of a run on ``base``: its entries are keyed by the code and the
+    shipped data (`batch.cache.code_version`), the detector settings, policies and limits, and
+    the digest of the decision weights in use (``learned.model`` may lie outside the package):
+    a retrained model never reuses the old model's logits."""
+    return EvidenceCache(folder, repr(base.detector), repr(base.policies), repr(base.limits),
+                         decision_model(base.detector).digest)
+
+
 def _verdict_blocks(ok_c, ok_p, want, base: AppConfig, grid, pgrid, n_tc: int,
                     target_far: float) -> list:
     """Verdicts of every setting, per profile: (settings, clean_prot, pos_prot, clean_hits,
     clean_cands, time_ms); columns hold the tuning images first, so tuning slices are views."""
     blocks = []
-    if "default" in want:  # the learned score: one logit per image, thresholds swept
+    if learned.NAME in want:  # the learned score: one logit per image, thresholds swept
         lc = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_c])
         lp = np.array([-np.inf if r["logit"] is None else r["logit"] for r, _, _ in ok_p])
         s, pc, pp = learned_scores(lc, lp, learned_thresholds(
@@ -399,19 +416,19 @@ def _verdict_blocks(ok_c, ok_p, want, base: AppConfig, grid, pgrid, n_tc: int,
         l_ms = float(np.mean([r["learned_ms"] for r, _, _ in ok_c + ok_p]))
         blocks.append((s, pc, pp, pc, np.ones(pc.shape[1]), np.full(len(s), l_ms)))
     ev_ms = (np.mean([r["evidence_ms"] for r, _, _ in ok_c + ok_p])
-             if want & {"cascade", "paper"} else 0.0)
-    if "cascade" in want:
-        s, pc, hc, cc = default_scores(np.stack([r["table"] for r, _, _ in ok_c]), grid,
+             if want & PATTERN_PROFILES else 0.0)
+    if cascade.NAME in want:
+        s, pc, hc, cc = cascade_scores(np.stack([r["table"] for r, _, _ in ok_c]), grid,
                                        [r["folds"] for r, _, _ in ok_c], base.detector,
                                        sweeps=[r["sweeps"] for r, _, _ in ok_c])
-        _, pp, _, _ = default_scores(np.stack([r["table"] for r, _, _ in ok_p]), grid,
+        _, pp, _, _ = cascade_scores(np.stack([r["table"] for r, _, _ in ok_p]), grid,
                                      [r["folds"] for r, _, _ in ok_p], base.detector,
                                      sweeps=[r["sweeps"] for r, _, _ in ok_p])
         match_ms = np.mean([r["match_ms"] for r, _, _ in ok_c + ok_p], axis=0)
         n_gate = len(s) // len(grid.match_combos())
         blocks.append((s, pc, pp, hc, np.broadcast_to(cc, pc.shape),
                        ev_ms + np.repeat(match_ms, n_gate)))
-    if "paper" in want:
+    if paper.NAME in want:
         s, pc, hc, cc = paper_scores([r["paper_peaks"] for r, _, _ in ok_c], base, pgrid)
         _, pp, _, _ = paper_scores([r["paper_peaks"] for r, _, _ in ok_p], base, pgrid)
         dec_ms = np.mean([r["paper_decode_ms"] for r, _, _ in ok_c + ok_p])

@@ -15,6 +15,7 @@ from pathlib import Path
 import typer
 
 from lishield_guard.commands import ExitCode, fail
+from lishield_guard.profiles import CASCADE, DEFAULT, LEARNED, PAPER
 
 __all__ = ["calibrate_command", "register"]
 
@@ -145,10 +146,10 @@ def calibrate_command(
     config: Path | None = typer.Option(None, "--config", help="Base config (default: shipped)."),
     jobs: int = typer.Option(0, "--jobs", "-j", help="Worker processes (default: all cores)."),
     profiles: str = typer.Option(
-        "default", "--profiles",
-        help="Profiles to sweep, comma-separated: default (the learned score's threshold; "
-             "one cheap measurement per image), cascade (the pattern search's thresholds; "
-             "seconds per striped image), paper (Algorithm 1)."),
+        DEFAULT, "--profiles",
+        help=f"Profiles to sweep, comma-separated: {LEARNED} (the learned score's threshold; "
+             f"one cheap measurement per image), {CASCADE} (the pattern search's thresholds; "
+             f"seconds per striped image), {PAPER} (Algorithm 1)."),
     no_cache: bool = typer.Option(False, "--no-cache", help="Do not read or write the cache."),
     dry_run: bool = typer.Option(
         False, "--dry-run",
@@ -198,7 +199,7 @@ def _profiles_and_base(profiles: str, config: Path | None):
 
     want = {p.strip() for p in profiles.split(",") if p.strip()}
     if not want or want - set(PROFILES):
-        raise fail(f"--profiles takes default, cascade and/or paper, got {profiles!r}")
+        raise fail(f"--profiles takes {', '.join(PROFILES)} (one or more), got {profiles!r}")
     try:
         return want, load_config(config)
     except LishieldError as exc:

@@ -14,6 +14,7 @@ import typer
 
 from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import ConfigError, LishieldError
+from lishield_guard.profiles import NAMES as PROFILES
 
 if TYPE_CHECKING:  # numpy and the config load only when a command runs (lazy start-up)
     from lishield_guard.config import AppConfig
@@ -21,15 +22,8 @@ if TYPE_CHECKING:  # numpy and the config load only when a command runs (lazy st
 __all__ = ["PROFILES", "Profile", "detect_command", "plot_verdict", "register", "resolve_config"]
 
 
-class Profile(StrEnum):
-    """Detector profiles (`DetectorConfig.profile`)."""
-
-    default = "default"
-    cascade = "cascade"
-    paper = "paper"
-
-
-PROFILES = tuple(p.value for p in Profile)
+#: Detector profiles (`DetectorConfig.profile`): the names of the profile registry.
+Profile = StrEnum("Profile", {name: name for name in PROFILES})
 
 
 def resolve_config(config: Path | None, profile: str | None) -> AppConfig:
@@ -69,26 +63,10 @@ def _describe(v, label: str, *, explain: bool) -> str:
         lines.append(f"{label}: UNDETERMINED (the detector could not look; not clean)")
     else:
         lines.append(f"{label}: clean, not protected (no policy barcode found)")
-    stage = ev.get("stage")
-    if status == "undetermined":  # nothing was measured, so there is nothing to count
-        counts = "none (the detector could not look)"
-    elif stage == "video":
-        vid = ev.get("video", {})
-        counts = (f"clip logit {ev.get('logit')} {'>=' if v.protected else '<'} threshold "
-                  f"{ev.get('threshold_logit'):.3g} over {vid.get('frames_screened')} frames")
-    elif stage == "learned":
-        counts = (f"decision logit {ev.get('logit')} "
-                  f"{'>=' if v.protected else '<'} threshold {ev.get('threshold_logit'):.3g}")
-    elif v.profile == "cascade" and v.protected and stage not in (None, "tones"):
-        counts = f"{v.matches}/{v.required} pattern fit ({stage})"
-    else:
-        unit = "ratios" if v.profile == "paper" else "tones"
-        counts = f"{v.matches}/{v.required} {unit} required"
-    lines.append(f"  matches: {counts}  score: {v.score:.3f}  profile: {v.profile}")
-    reason = ev.get("reason")
-    if reason is None and v.profile == "paper":
-        reason = (f"{v.matches} ratio match(es) among {len(ev.get('frequencies_hz', []))} "
-                  f"peak frequencies; spec {ev.get('best_spec')}")
+    # the numbers and the reason of the deciding profile or media kind (its typed evidence)
+    lines.append(f"  matches: {v.evidence.counts(v)}  score: {v.score:.3f}  profile: "
+                 f"{v.profile}")
+    reason = v.evidence.reason
     lines.append(f"  reason: {reason}")
     if v.skipped:
         lines.append("  skipped: " + "; ".join(v.skipped))
@@ -134,18 +112,16 @@ def _with_physics(verdict, source, cfg):
     model fit on the same image attached as ``evidence["physics"]`` (its reason, stage and
     best fit): the explanation ``--explain`` asks for, run only on flagged images and outside
     the verdict's bounded cost."""
-    import dataclasses
-
-    from lishield_guard.config import AppConfig
     from lishield_guard.detector import detect
+    from lishield_guard.profiles import cascade
 
-    cascade = AppConfig(detector=cfg.detector.replace(profile="cascade"), limits=cfg.limits,
-                        policies=cfg.policies, source=cfg.source)
-    c = detect(source, cascade)
-    physics = {"profile": "cascade", "protected": c.protected,
+    c = detect(source, dataclasses.replace(
+        cfg, detector=cfg.detector.replace(profile=cascade.NAME)))
+    physics = {"profile": cascade.NAME, "protected": c.protected,
                "reason": c.evidence.get("reason"), "stage": c.evidence.get("stage"),
                "best": c.evidence.get("best"), "timings_ms": c.timings_ms}
-    return dataclasses.replace(verdict, evidence={**verdict.evidence, "physics": physics})
+    return dataclasses.replace(verdict,
+                               evidence=dataclasses.replace(verdict.evidence, physics=physics))
 
 
 def _explain_best(best: dict | None) -> list[str]:
@@ -208,7 +184,8 @@ def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path
 
 PLOT_HELP = ("Write the figure of what decided the verdict: the network's logit for every "
              "window, the deciding window's spectrum with the tones of the spec that explains "
-             "it best, and that window's row profile (the cascade profile: the fitted rows "
+             "it best, and its column range's spectrum in each quarter of the rows (the "
+             "cascade profile: the fitted rows "
              "with the template and the look-alike; a clip: the deciding frame above the "
              "per-frame scores). With several images: a folder, one IMG-stem.png each (the "
              "folders too where stems repeat).")
@@ -292,7 +269,7 @@ def _detect_one(image: str, cfg: AppConfig, *, explain: bool, as_json: bool,
         source, label = image, image
     try:  # a missing or unreadable file is a typed error of the reader, as in scan records
         verdict = detect_media(source, cfg)
-        if explain and verdict.protected and (verdict.evidence or {}).get("stage") == "learned":
+        if explain and verdict.protected and hasattr(verdict.evidence, "physics"):
             verdict = _with_physics(verdict, source, cfg)
     except Exception as exc:  # noqa: BLE001 - never clean; a bug still prints no traceback
         return _input_error(label, exc)

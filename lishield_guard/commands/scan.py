@@ -11,6 +11,7 @@ import typer
 
 from lishield_guard.commands import ExitCode, fail
 from lishield_guard.errors import LishieldError
+from lishield_guard.profiles import NAMES as PROFILES
 
 __all__ = ["exit_code_for", "register", "scan_command"]
 
@@ -112,7 +113,7 @@ def scan_command(
                                          help="Run on an existing Dask scheduler."),
     config: Path | None = typer.Option(None, "--config", help="Config TOML (default: shipped)."),
     profile: str | None = typer.Option(None, "--profile",
-                                       help="Detector profile: default|cascade|paper."),
+                                       help=f"Detector profile: {'|'.join(PROFILES)}."),
     progress: bool | None = typer.Option(None, "--progress/--no-progress",
                                          help="Progress bar on stderr (default: when stderr "
                                          "is a terminal)."),

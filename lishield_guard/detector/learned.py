@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lishield_guard.data_files import file_digest
 from lishield_guard.detector import spectra, tfinput
 from lishield_guard.errors import ConfigError
 
@@ -50,11 +51,15 @@ class DecisionModel:
         weight of shape (c_in, c_out) float32, bias (c_out,).
     card : dict
         Provenance and metrics (see ``decision_model.json``).
+    digest : str or None
+        ``sha256:<hex>`` of the weights file's bytes (`data_files.file_digest`), computed
+        when loading; thresholds calibrated for these weights record it.
     """
 
     convs: tuple
     dense: tuple
     card: dict
+    digest: str | None = None
 
     @property
     def kernel(self) -> int:
@@ -127,8 +132,9 @@ def load_model(weights: str | Path, card: str | Path | None = None) -> DecisionM
     Raises
     ------
     ConfigError
-        When a file is missing or unreadable, or the card's ``input_version`` is not the
-        code's `spectra.INPUT_VERSION` (weights trained on another representation).
+        When a file is missing or unreadable, the card's ``input_version`` is not the
+        code's `spectra.INPUT_VERSION` (weights trained on another representation), or the
+        card's ``weights_digest`` (when it has one) is not the weights file's digest.
     """
     weights = Path(weights)
     card = Path(card) if card is not None else weights.with_suffix(".json")
@@ -136,12 +142,18 @@ def load_model(weights: str | Path, card: str | Path | None = None) -> DecisionM
         meta = json.loads(card.read_text())
         with np.load(weights) as z:
             arrays = {k: z[k] for k in z.files}
+        digest = file_digest(weights)
     except (OSError, ValueError) as exc:
         raise ConfigError(f"cannot read decision model {weights} / {card}: {exc}") from exc
-    return _from_arrays(arrays, meta, str(weights))
+    if meta.get("weights_digest") not in (None, digest):
+        raise ConfigError(f"decision model {weights}: its card {card} describes weights "
+                          f"{meta['weights_digest']}, the file is {digest}: the card and the "
+                          f"weights do not belong together (retrain, or restore the pair)")
+    return _from_arrays(arrays, meta, str(weights), digest)
 
 
-def _from_arrays(arrays: dict, meta: dict, where: str) -> DecisionModel:
+def _from_arrays(arrays: dict, meta: dict, where: str, digest: str | None = None
+                 ) -> DecisionModel:
     if meta.get("input_version") not in INPUT_SHAPES:
         raise ConfigError(f"decision model {where} was trained on input "
                           f"{meta.get('input_version')!r}; this code computes "
@@ -155,7 +167,7 @@ def _from_arrays(arrays: dict, meta: dict, where: str) -> DecisionModel:
                       for i in range(int(meta["n_dense"])))
     except KeyError as exc:
         raise ConfigError(f"decision model {where} lacks {exc}") from exc
-    return DecisionModel(convs, dense, meta)
+    return DecisionModel(convs, dense, meta, digest)
 
 
 @cache

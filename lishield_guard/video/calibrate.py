@@ -19,10 +19,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from lishield_guard.config import AppConfig
+from lishield_guard.settings import VideoConfig
 from lishield_guard.stats import upper_bound
 from lishield_guard.video.decode import open_video
 from lishield_guard.video.screen import COMBINE_LAMBDA, clip_logit, screen_video
-from lishield_guard.video.settings import VideoConfig
 
 __all__ = ["ClipScores", "VideoCalibration", "calibrate_video", "clip_scores",
            "flag_threshold", "markov_far", "run_video_calibration", "score_clips"]
@@ -227,7 +227,8 @@ def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, pos
     clean : list of path
         Folders of clean clips (no barcode; any look-alike light), listed recursively.
     base : AppConfig
-        The config whose ``[video]`` thresholds are replaced in the written file.
+        The config whose ``[video]`` threshold is replaced in the written file, with the
+        digest of the decision weights it was calibrated for beside it.
     out : path
         Config TOML to write (``threshold_logit`` set; the header states the certification).
     report : path, optional
@@ -265,8 +266,11 @@ def run_video_calibration(clean: list, *, base: AppConfig, out, report=None, pos
                               desc="certification clips") if held else []
     cal = calibrate_video(scores, vcfg, target_far=target_far, cert_fraction=cert_fraction,
                           seed=seed, positives=pos, certify=held_scores)
-    cfg = dataclasses.replace(base, video=dataclasses.replace(
-        vcfg, threshold_logit=cal.threshold_logit))
+    from lishield_guard.detector.decision import decision_model
+
+    cfg = dataclasses.replace(base, video=dataclasses.replace(  # bound to the weights it used
+        vcfg, threshold_logit=cal.threshold_logit,
+        model_digest=decision_model(base.detector).digest))
     header = (f"calibrated by {command or 'run_video_calibration'} on "
               f"{datetime.date.today().isoformat()}\n"
               f"video: {cal.n_tune} clean tuning clips, {cal.n_cert} certification clips, "

@@ -32,7 +32,7 @@ from lishield_guard.errors import (
     VideoTooLongError,
     input_file_error,
 )
-from lishield_guard.video.settings import VideoLimits
+from lishield_guard.settings import VideoLimits
 
 __all__ = ["VIDEO_SUFFIXES", "DecodedFrame", "VideoInfo", "VideoReader", "ffmpeg_reason",
            "is_video_bytes", "open_video"]

@@ -25,6 +25,7 @@ calibration and detection screen the same frames of a clip.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -33,13 +34,13 @@ import numpy as np
 
 from lishield_guard.config import AppConfig
 from lishield_guard.detector.decision import DecisionRecord, measure, window_label
-from lishield_guard.detector.pipeline import learned_evidence, learned_scope
-from lishield_guard.verdict import Verdict
+from lishield_guard.profiles import learned, of
+from lishield_guard.settings import VideoConfig
+from lishield_guard.verdict import Evidence, Verdict, nothing_to_look_for, undetermined
 from lishield_guard.video.decode import VideoInfo, VideoReader, open_video
-from lishield_guard.video.settings import VideoConfig
 
-__all__ = ["COMBINE_LAMBDA", "FrameScore", "VideoRecord", "clip_logit", "combine_frames",
-           "plan_runs", "replay", "screen_video", "video_verdict"]
+__all__ = ["COMBINE_LAMBDA", "FrameScore", "VideoEvidence", "VideoRecord", "clip_logit",
+           "combine_frames", "plan_runs", "replay", "screen_video", "video_verdict"]
 
 COMBINE_LAMBDA = 1.0  # log-mean-exp temperature over frame logits (dev set: see docs/video.md)
 
@@ -79,6 +80,12 @@ class VideoRecord:
         The record of the frame with the largest logit (for the explanation).
     decoded_frames : int
         Frames the decoder produced (screened or passed over).
+    row_scale : int
+        Frame rows per analysed row (frames scaled down to ``max_rows``).
+    checkpoints : tuple of float
+        The clip logit after each run.
+    best_rgb : ndarray or None
+        The pixels of the frame with the largest logit, as screened (the figure draws it).
     """
 
     info: VideoInfo
@@ -88,6 +95,7 @@ class VideoRecord:
     decoded_frames: int
     row_scale: int = 1
     checkpoints: tuple[float, ...] = field(default=())
+    best_rgb: np.ndarray | None = None
 
     @property
     def logits(self) -> np.ndarray:
@@ -196,7 +204,7 @@ def plan_runs(info: VideoInfo, vcfg: VideoConfig) -> list[list[float]]:
 
 
 def _measure_run(reader: VideoReader, times, run: int, config: AppConfig, vcfg: VideoConfig,
-                 timings: dict) -> list[tuple[FrameScore, DecisionRecord | None]]:
+                 timings: dict) -> list[tuple[FrameScore, DecisionRecord | None, np.ndarray]]:
     det = config.detector
     out = []
     t0 = time.perf_counter()
@@ -208,11 +216,11 @@ def _measure_run(reader: VideoReader, times, run: int, config: AppConfig, vcfg: 
         timings["measure"] = timings.get("measure", 0.0) + (time.perf_counter() - t0) * 1e3
         if rec.undetermined is not None:
             out.append((FrameScore(fr.index, fr.time_s, -math.inf, "", fr.keyframe, run,
-                                   rec.undetermined), None))
+                                   rec.undetermined), None, fr.rgb))
         else:
             out.append((FrameScore(fr.index, fr.time_s, rec.logit,
                                    window_label(rec.spectra, rec.best), fr.keyframe, run),
-                        rec))
+                        rec, fr.rgb))
     return out
 
 
@@ -225,16 +233,17 @@ def screen_video(reader: VideoReader, config: AppConfig, vcfg: VideoConfig,
     frames: list[FrameScore] = []
     sizes: list[int] = []
     best: DecisionRecord | None = None
+    best_rgb = None
     stop = "end"
     plan = plan_runs(reader.info, vcfg)
     checkpoints = []
     for r, times in enumerate(plan):
         got = _measure_run(reader, times, r, config, vcfg, timings)
-        for fs, rec in got:
+        for fs, rec, rgb in got:
             frames.append(fs)
             if rec is not None and (best is None or rec.logit > best.logit):
-                best = rec
-        sizes.append(sum(1 for fs, _ in got if fs.undetermined is None))
+                best, best_rgb = rec, rgb
+        sizes.append(sum(1 for fs, _, _ in got if fs.undetermined is None))
         if reader.budget_hit:
             stop = "decode_budget"
             break
@@ -247,14 +256,14 @@ def screen_video(reader: VideoReader, config: AppConfig, vcfg: VideoConfig,
             break
         stop = "max_frames" if sum(len(t) for t in plan[:r + 1]) >= vcfg.max_frames else "end"
     return VideoRecord(reader.info, tuple(frames), stop, best, reader.decoded_frames,
-                       checkpoints=tuple(checkpoints))
+                       reader.row_scale(vcfg.max_rows), tuple(checkpoints), best_rgb)
 
 
 def video_verdict(rec: VideoRecord, config: AppConfig, vcfg: VideoConfig,
                   timings: dict, skipped: list[str]) -> Verdict:
     """The clip's Verdict from its record: status by the stopping rule, the deciding frames,
-    per-frame scores and, when flagged, the spec that explains the best frame."""
-    det = config.detector
+    per-frame scores and the learned profile's evidence of the best frame
+    (`profiles.learned.evidence`: the spec it names is the clip's)."""
     logits = rec.logits
     sizes = [sum(1 for f in rec.frames if f.run == r and f.undetermined is None)
              for r in range(1 + max((f.run for f in rec.frames), default=-1))]
@@ -267,40 +276,124 @@ def video_verdict(rec: VideoRecord, config: AppConfig, vcfg: VideoConfig,
     if rec.row_scale > 1:
         skipped.append(f"full resolution: frames scaled to 1/{rec.row_scale} (stripes need "
                        f"rows, not pixels)")
-    video = {"info": rec.info.to_dict(), "stop": rec.stop, "frames_screened": len(rec.frames),
-             "frames_decoded": rec.decoded_frames, "clip_logit": round(s, 4),
-             "threshold_logit": vcfg.threshold_logit, "clear_logit": vcfg.clear_logit,
-             "combine": f"log-mean-exp, lambda {COMBINE_LAMBDA:g}",
-             "checkpoints": [round(c, 4) for c in rec.checkpoints],
-             "frames": [f.to_dict() for f in rec.frames]}
     if len(logits) < vcfg.min_frames or rec.best is None:
         why = (f"only {len(logits)} frames could be screened (need {vcfg.min_frames}; "
                f"stopped: {rec.stop})")
-        return Verdict(False, None, 0, 1, evidence={"reason": why, "video": video},
-                       skipped=tuple(skipped), timings_ms=timings, profile="default",
-                       undetermined=why)
-    protected = decision == "flagged"
-    specs = [(p.id, sp) for p in config.policies for sp in p.specs]
+        return undetermined(why, looked_at=_looked_at(rec), profile=learned.NAME,
+                            required=learned.required(config), skipped=skipped,
+                            timings_ms=timings, extra={"video": _video_json(
+                                rec, vcfg.threshold_logit, vcfg.clear_logit, s)})
     t0 = time.perf_counter()
-    best_ev = learned_evidence(rec.best, specs, det)
+    best_ev = learned.evidence(rec.best, config, row_scale=rec.row_scale)
     timings["explain"] = (time.perf_counter() - t0) * 1e3
-    order = sorted((f for f in rec.frames if f.undetermined is None), key=lambda f: -f.logit)
-    deciding = [f.index for f in order[:3]]
-    if protected:
-        reason = (f"barcode in video: clip logit {s:.2f} >= threshold "
-                  f"{vcfg.threshold_logit:.2f} over {n_used} frames (deciding frames "
-                  f"{', '.join(map(str, deciding))}); best frame: {best_ev['reason']}")
-    else:
-        reason = (f"clean video: clip logit {s:.2f} < threshold {vcfg.threshold_logit:.2f} "
-                  f"over {len(logits)} frames (stopped: {rec.stop}; highest frame logit "
-                  f"{order[0].logit:.2f} at frame {order[0].index})")
-    evidence = dict(best_ev, reason=reason, stage="video", logit=round(s, 4),
-                    threshold_logit=vcfg.threshold_logit, deciding_frames=deciding,
-                    best_frame=order[0].index, video=video)
-    return Verdict(protected=protected, policy=best_ev["policy"] if protected else None,
-                   matches=int(protected), required=1, evidence=evidence,
-                   skipped=tuple(skipped), timings_ms=timings, profile="default",
-                   score=float(1.0 / (1.0 + math.exp(-min(max(s, -60.0), 60.0)))))
+    ev = VideoEvidence("", rec, best_ev, s, vcfg.threshold_logit, vcfg.clear_logit, n_used,
+                       decision == "flagged")
+    protected = ev.flagged
+    return Verdict(protected=protected, policy=best_ev.policy if protected else None,
+                   matches=int(protected), required=learned.required(config),
+                   evidence=ev.with_reason(), skipped=tuple(skipped), timings_ms=timings,
+                   profile=learned.NAME, score=learned.logit_score(s))
+
+
+def _looked_at(rec: VideoRecord) -> str:
+    """The clip, in words: its size and the frames screened."""
+    return (f"{rec.info.width} x {rec.info.height} clip, {len(rec.frames)} frames screened "
+            f"of {rec.info.n_frames}")
+
+
+def _video_json(rec: VideoRecord, threshold_logit: float, clear_logit: float,
+                clip: float) -> dict:
+    """``evidence["video"]``: the header, why screening stopped, every frame's score."""
+    return {"info": rec.info.to_dict(), "stop": rec.stop, "frames_screened": len(rec.frames),
+            "frames_decoded": rec.decoded_frames, "clip_logit": round(clip, 4),
+            "threshold_logit": threshold_logit, "clear_logit": clear_logit,
+            "combine": f"log-mean-exp, lambda {COMBINE_LAMBDA:g}",
+            "checkpoints": [round(c, 4) for c in rec.checkpoints],
+            "frames": [f.to_dict() for f in rec.frames]}
+
+
+@dataclass(frozen=True, eq=False)
+class VideoEvidence(Evidence):
+    """A clip's evidence: its record and the learned evidence of its best frame.
+
+    Attributes
+    ----------
+    reason : str
+        The clip's verdict in words (`with_reason` writes it).
+    record : VideoRecord
+        Every screened frame's score, the best frame's record and pixels.
+    best : LearnedEvidence
+        The learned profile's evidence of the best frame (its named spec is the clip's).
+    clip_logit : float
+        The clip logit the stopping rule ended on.
+    threshold_logit, clear_logit : float
+        The clip thresholds.
+    n_used : int
+        Frames the verdict rests on.
+    flagged : bool
+        The stopping rule's answer.
+    """
+
+    reason: str
+    record: VideoRecord
+    best: Evidence
+    clip_logit: float
+    threshold_logit: float
+    clear_logit: float
+    n_used: int
+    flagged: bool
+
+    @property
+    def spec(self) -> str | None:
+        """The best frame's named spec."""
+        return self.best.spec
+
+    @property
+    def ranked(self) -> list[FrameScore]:
+        """The determined frames, highest logit first."""
+        return sorted((f for f in self.record.frames if f.undetermined is None),
+                      key=lambda f: -f.logit)
+
+    def with_reason(self) -> VideoEvidence:
+        """This evidence with its reason written from its numbers."""
+        order = self.ranked
+        thr = self.threshold_logit
+        if self.flagged:
+            reason = (f"barcode in video: clip logit {self.clip_logit:.2f} >= threshold "
+                      f"{thr:.2f} over {self.n_used} frames (deciding frames "
+                      f"{', '.join(str(f.index) for f in order[:3])}); best frame: "
+                      f"{self.best.reason}")
+        else:
+            reason = (f"clean video: clip logit {self.clip_logit:.2f} < threshold {thr:.2f} "
+                      f"over {len(order)} frames (stopped: {self.record.stop}; highest frame "
+                      f"logit {order[0].logit:.2f} at frame {order[0].index})")
+        return dataclasses.replace(self, reason=reason)
+
+    def to_dict(self) -> dict:
+        """The best frame's evidence, with the clip's reason, numbers and frames."""
+        order = self.ranked
+        return dict(self.best.to_dict(), reason=self.reason, stage="video",
+                    logit=round(self.clip_logit, 4), threshold_logit=self.threshold_logit,
+                    deciding_frames=[f.index for f in order[:3]], best_frame=order[0].index,
+                    video=_video_json(self.record, self.threshold_logit, self.clear_logit,
+                                      self.clip_logit))
+
+    def counts(self, verdict: Verdict) -> str:
+        """``clip logit S >= threshold T over N frames``."""
+        return (f"clip logit {round(self.clip_logit, 4)} {'>=' if self.flagged else '<'} "
+                f"threshold {self.threshold_logit:.3g} over {len(self.record.frames)} frames")
+
+    def caption(self, verdict: Verdict) -> str:
+        """`video.figure.video_caption`."""
+        from lishield_guard.video.figure import video_caption
+
+        return video_caption()
+
+    def figure(self, verdict: Verdict, config):
+        """`video.figure.video_figure`, from the record."""
+        from lishield_guard.video.figure import video_figure
+
+        return video_figure(verdict, self)
 
 
 def detect_video(source, config: AppConfig, vcfg: VideoConfig | None = None) -> Verdict:
@@ -332,15 +425,16 @@ def detect_video(source, config: AppConfig, vcfg: VideoConfig | None = None) -> 
     reader = open_video(source, vcfg.limits)
     timings["open"] = (time.perf_counter() - t0) * 1e3
     with reader:
-        why, skipped = learned_scope(config)
-        if config.detector.profile != "default":
+        why = nothing_to_look_for(config)
+        why, skipped = (why, []) if why is not None else learned.scope(config)
+        if of(config) is not learned:
             skipped.append(f"profile {config.detector.profile}: videos are screened with the "
-                           f"default profile's learned decision")
+                           f"{learned.NAME} profile's learned decision")
         if why is not None:
-            return Verdict(False, None, 0, 1, evidence={"reason": why}, skipped=tuple(skipped),
-                           timings_ms=timings, profile="default", undetermined=why)
+            info = reader.info
+            return undetermined(why, looked_at=f"{info.width} x {info.height} clip, no frame "
+                                f"screened", profile=learned.NAME,
+                                required=learned.required(config), skipped=skipped,
+                                timings_ms=timings)
         rec = screen_video(reader, config, vcfg, timings)
-        rec = VideoRecord(rec.info, rec.frames, rec.stop, rec.best, rec.decoded_frames,
-                          reader.row_scale(vcfg.max_rows),
-                          rec.checkpoints)
     return video_verdict(rec, config, vcfg, timings, skipped)

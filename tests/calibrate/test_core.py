@@ -1,4 +1,4 @@
-"""The fast sweep path agrees with pipeline.decide, and the null model behaves."""
+"""The fast sweep path agrees with the cascade's decide_record, and the null model behaves."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from lishield_guard import calibration as cal
 from lishield_guard.config import AppConfig, default_config
-from lishield_guard.detector.pipeline import decide
+from lishield_guard.profiles.cascade import decide_record
 
 
 @pytest.fixture(scope="module")
@@ -38,12 +38,13 @@ def _orthogonal_subset(settings, grid_levels: dict[str, tuple]) -> list[int]:
 @pytest.mark.timeout(1200)
 def test_candidate_table_agrees_with_decide(records):
     """Calibration's vectorised decision (candidate tables, fold and sweep tables) equals
-    `pipeline.decide` on every image, for every setting of a strength-2 orthogonal array of the
-    thresholds below (each `decide` call refits, so all 32 settings took 131 s on 2 cores;
-    `test_rule_agreement` covers the pass rules themselves over random thresholds). Since the
-    emitter-variant search the 8 take about 5-10 minutes on a shared machine."""
+    `cascade.decide_record` on every image, for every setting of a strength-2 orthogonal array
+    of the thresholds below (each `decide_record` call refits, so all 32 settings took 131 s
+    on 2 cores; `test_rule_agreement` covers the pass rules themselves over random
+    thresholds). Since the emitter-variant search the 8 take about 5-10 minutes on a shared
+    machine."""
     cfg, recs = records
-    grid = cal.DefaultGrid(peak_false_prob=(1e-2, 1e-4), tone_rel_tol=(0.05,),
+    grid = cal.CascadeGrid(peak_false_prob=(1e-2, 1e-4), tone_rel_tol=(0.05,),
                            min_occupancy=(0.04,), max_occupancy=(0.8,), min_purity=(0.3, 0.6),
                            min_tones=(2,), sweep_min_rho=(0.6, 0.9), sweep_min_margin=(0.0,),
                            sweep_min_coherence=(3.0,), fit_min_rho=(0.9,),
@@ -51,7 +52,7 @@ def test_candidate_table_agrees_with_decide(records):
                            fit_rgb=((0.8, 0.5, 0.3),),
                            fit_periodic=((0.85, 1.0), (1.0, math.inf)))
     tables = np.stack([cal.candidate_table(r["evidence"], cfg, grid)[0] for r in recs])
-    settings, prot, _, _ = cal.default_scores(tables, grid, [r["folds"] for r in recs],
+    settings, prot, _, _ = cal.cascade_scores(tables, grid, [r["folds"] for r in recs],
                                               cfg.detector, fold_min_rho=(0.9,),
                                               sweeps=[r["sweeps"] for r in recs])
     assert len(settings) == 32
@@ -64,8 +65,8 @@ def test_candidate_table_agrees_with_decide(records):
     for i in subset:
         det = settings[i].apply(cfg.detector)
         app = AppConfig(detector=det, limits=cfg.limits, policies=cfg.policies)
-        want = [decide(r["evidence"].with_false_prob(det.tones.peak_false_prob), app).protected
-                for r in recs]
+        want = [decide_record(r["evidence"].with_false_prob(det.tones.peak_false_prob),
+                              app).protected for r in recs]
         assert prot[i].tolist() == want, settings[i].label()
         n_pos += sum(want)
     assert n_pos > 0  # the easy positives are found by some settings

@@ -43,8 +43,8 @@ def test_selection_tie_prefers_lower_bound():
     assert met and best.false_alarms == 0
 
 
-def test_default_scores_gates():
-    grid = cal.DefaultGrid(peak_false_prob=(1e-3,), tone_rel_tol=(0.04,), min_occupancy=(0.04,),
+def test_cascade_scores_gates():
+    grid = cal.CascadeGrid(peak_false_prob=(1e-3,), tone_rel_tol=(0.04,), min_occupancy=(0.04,),
                            max_occupancy=(0.8,), min_purity=(0.3, 0.7), min_tones=(2, 3),
                            min_tones_rgb=(3,))
     # 2 images x 1 combo x 2 candidates (mono, rgb)
@@ -53,7 +53,7 @@ def test_default_scores_gates():
     t[:, :, 1, cal.IS_RGB] = 1
     t[0, 0, 0, :4] = (2, 0.5, 3, 1)  # mono: 2 tones, purity .5, switching
     t[1, 0, 1, :4] = (3, 0.9, 2, 1)  # rgb: 3 tones but only one channel hit
-    settings, prot, hits, cands = cal.default_scores(t, grid)
+    settings, prot, hits, cands = cal.cascade_scores(t, grid)
     got = {(s.as_dict["tones.min_purity"], s.as_dict["tones.min_tones"]): p.tolist()
            for s, p in zip(settings, prot, strict=True)}
     assert got[(0.3, 2)] == [True, False]

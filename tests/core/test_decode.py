@@ -268,7 +268,7 @@ def test_the_default_profile_decodes_a_colour_jpeg_once_when_an_rgb_spec_is_conf
     from skimage import data
 
     from lishield_guard import default_config
-    from lishield_guard.detector.pipeline import decode_for
+    from lishield_guard.profiles.detect import decode_for
 
     ok, buf = cv2.imencode(".jpg", data.coffee()[:, :, ::-1])
     assert ok

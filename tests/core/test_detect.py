@@ -248,7 +248,7 @@ _RGB_HIDDEN_IN_LUMA = {
 
 def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     from lishield_guard.decode import decode
-    from lishield_guard.detector.pipeline import collect_evidence, decide
+    from lishield_guard.profiles.cascade import collect_record, decide_record
     from synth.dataset import render_item
 
     data, _ = render_item(_RGB_HIDDEN_IN_LUMA)
@@ -256,7 +256,7 @@ def test_rgb_barcode_hidden_in_luma_is_found_and_lazy_equals_full():
     lazy = detect_cascade(data, cfg)
     dec = decode(data, limits=cfg.limits, fast=True,
                  max_rows=cfg.detector.profiles.max_decode_rows)
-    full = decide(collect_evidence(dec, cfg), cfg)
+    full = decide_record(collect_record(dec, cfg), cfg)
     assert lazy.protected and lazy.policy == "no-distribution"
     assert not any("colour planes" in s for s in lazy.skipped)
     assert (lazy.protected, lazy.evidence["reason"]) == (full.protected, full.evidence["reason"])

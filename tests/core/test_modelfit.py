@@ -210,8 +210,8 @@ def test_fit_decides_where_the_grid_cannot(rng):
     """A seq3 capture holding seven periods under a 1.3-slot exposure: the binned grid's
     best fit does not pass the sweep thresholds, the exact model does (shipped config)."""
     from lishield_guard import default_config
-    from lishield_guard.detector.pipeline import _axis_sweeps
     from lishield_guard.detector.rules import fit_passes, grid_passes
+    from lishield_guard.detector.search import axis_sweeps
     from lishield_guard.detector.tones import scale_range_cpr_per_hz
     from lishield_guard.detector.tracks import PlaneAnalysis
 
@@ -225,7 +225,7 @@ def test_fit_decides_where_the_grid_cannot(rng):
                        blocks.astype(np.float32))
     period = spec.n_tones / f_b * rate
     assert N_ROWS / period > 7
-    fits = _axis_sweeps({"L": pa}, [("p", spec)], det, [2 * period])[spec.name]
+    fits = axis_sweeps({"L": pa}, [("p", spec)], det, [2 * period])[spec.name]
     assert scale_range_cpr_per_hz(det)[0] > 0
     (entry,) = fits
     assert not grid_passes(entry, det)

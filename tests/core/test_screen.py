@@ -48,8 +48,8 @@ def test_a_12_mp_jpegs_own_block_grid_is_not_stripes():
     3-row period; the first stage must not take it for LED stripes (it did: every such
     photo paid the whole pattern search, about 1 s)."""
     from lishield_guard.decode import decode
-    from lishield_guard.detector.pipeline import analyse_plane
     from lishield_guard.detector.screen import jpeg_grid_cpr
+    from lishield_guard.detector.search import analyse_plane
 
     rng = np.random.default_rng(12)
     big = cv2.resize(data.astronaut(), (4032, 3024), interpolation=cv2.INTER_CUBIC)
@@ -110,7 +110,7 @@ def test_a_light_covering_half_the_frame_passes_the_first_stage(make_led_image):
     the columns passes on its own, and the capture the full cascade flags stays flagged (two
     such development captures were cleared before the halves were tested)."""
     from lishield_guard.decode import decode
-    from lishield_guard.detector.pipeline import analyse_plane
+    from lishield_guard.detector.search import analyse_plane
 
     cfg = cascade_config()
     det = cfg.detector
@@ -154,7 +154,7 @@ def test_a_cleared_photo_pays_neither_tone_tracks_nor_sub_block_detrending(make_
     """What the first stage clears costs only the screen: no spec's tones are matched, and
     sub-blocks are detrended only for the luma halves test, not for the 8 planes analysed
     (both ran for every plane of every photo before)."""
-    import lishield_guard.detector.pipeline as pipeline
+    import lishield_guard.detector.search as search
     import lishield_guard.detector.tracks as tracks
 
     def forbidden(*args, **kwargs):
@@ -162,7 +162,7 @@ def test_a_cleared_photo_pays_neither_tone_tracks_nor_sub_block_detrending(make_
 
     scene = cv2.resize(data.coffee(), (1440, 1080))
     image = make_led_image(None, scene=scene)
-    monkeypatch.setattr(pipeline, "match_spec", forbidden)
+    monkeypatch.setattr(search, "match_spec", forbidden)
     real_detrend = tracks.detrend_profiles
     sizes = []
     monkeypatch.setattr(tracks, "detrend_profiles",
@@ -215,15 +215,16 @@ def test_the_evidence_lists_searched_candidates_before_cleared_ones():
     """With more (axis, spec) candidates than the evidence lists, the ones the pattern search
     looked at are kept ahead of those the first stage cleared (same tone count): what
     evaluate.py's "stage reached" reads from the verdict."""
-    from lishield_guard.detector.pipeline import MAX_CANDIDATES, _verdict
     from lishield_guard.detector.results import SpecMatch
+    from lishield_guard.profiles.cascade import MAX_CANDIDATES, _verdict
 
     def cand(axis, name, stage):
         return (axis, "p", SpecMatch(name, 0.0, {}, {}, 0, 2, 0.0, 0, False, "r", stage=stage))
 
     cands = [cand("rows", f"s{i}", "first stage") for i in range(MAX_CANDIDATES)]
     cands += [cand("columns", "s0", "exact fit"), cand("columns", "s1", "sweep")]
-    v = _verdict(cands, cascade_config(), [], {}, 1, "jpeg")
+    v = _verdict(cands, {"rows": {}, "columns": {}}, cascade_config(), [], {}, 1, "jpeg", "",
+                 1.0)
     listed = v.evidence["candidates"]
     assert len(listed) == MAX_CANDIDATES
     assert [c["stage"] for c in listed[:2]] == ["exact fit", "sweep"]

@@ -135,7 +135,7 @@ def test_fit_periods_leave_two_slots_in_the_frame():
     """A small crop holds a fraction of a pattern: a smooth curve anything fits. Sweep and
     exact fit only try periods that leave two slots (two tones) in the frame."""
     from lishield_guard import default_config
-    from lishield_guard.detector.pipeline import (
+    from lishield_guard.detector.search import (
         MIN_SLOTS_IN_FRAME,
         _frame_period_range,
         _period_range_rows,

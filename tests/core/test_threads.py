@@ -36,7 +36,7 @@ def test_one_thread_per_worker_limits_every_loaded_blas_and_opencv():
 # CPU job the demo photo's "measure" took 394-690 ms instead of 90-120 ms with one thread.
 PROBE_DURING = """
 import json, sys, cv2, threadpoolctl, numpy as np
-import lishield_guard.detector.pipeline as pipeline
+import lishield_guard.profiles.detect as pipeline
 
 def blas():
     return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]

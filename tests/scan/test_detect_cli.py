@@ -106,9 +106,9 @@ def test_version_and_help_teach(run_cli):
     assert "<default|cascade|paper>" in out and "(use this)" in out
 
 
-def test_plot_reads_evidence_defensively(tmp_path):
-    """The figure draws from whatever evidence is there: extra keys (emitter variants, a
-    look-alike's parameters), missing keys, or an undetermined verdict."""
+def test_plot_draws_verdicts_built_by_hand(tmp_path):
+    """A verdict whose evidence is a dict (built by hand, not by a profile) gets a figure of
+    its reason, whatever keys the dict holds; the title states the status."""
     from lishield_guard.config import load_config
     from lishield_guard.plot import verdict_png, verdict_title
 
@@ -143,26 +143,27 @@ def test_plot_reads_evidence_defensively(tmp_path):
 
 
 def test_the_figure_states_the_thresholds_of_each_path():
-    """The lines under the figure hold each number against the configured threshold of the
-    path that decided (read by dotted name; an optional path that is off says so)."""
+    """The lines under the figure hold each number against the thresholds of every way to pass
+    that is open to the fit (`rules.fit_paths`, the rule itself: a path that is off or does
+    not apply is not listed; the colour path's limit is stated)."""
     from lishield_guard.config import default_config
+    from lishield_guard.detector.results import ModelFit, SweepMatch, SweepResult
     from lishield_guard.plot import _threshold_lines
 
     det = default_config().detector
-    v = Verdict(True, "p", 1, 1, evidence={}, profile="default")
-    fit = {"rho": 0.883, "rho_lookalike": 0.718, "gain": 1.19, "coherence_t": 20.9,
-           "n_periods": 0.87, "chroma_leak": 0.28}
-    text = "\n".join(_threshold_lines("exact capture-model fit", fit, det, v))
-    assert "[pass] correlation rho 0.883   (needs >= 0.85; colour-verified path)" in text
-    assert "(needs >= 1); look-alike rho 0.718" in text
+    fit = ModelFit("table2-rgb", "R", 0.883, 0.718, 100.0, 1.0, 0.3, 0.5, 20.9, 0.87, 0.28)
+    text = "\n".join(_threshold_lines("exact capture-model fit", fit, det))
+    assert "[pass] colour-verified path: rho 0.883 (needs >= 0.85), gain over the look-alike " \
+           "1.20 (needs >= 1); look-alike rho 0.718" in text
+    assert "[FAIL] general path: rho 0.883 (needs >= 0.9)" in text
+    assert "periods path" not in text  # 0.87 periods: the periodic path is not open
     assert "t = 20.9   (needs >= 3)" in text and "colour path needs <= 0.3" in text
     off = det.with_values({"fit.max_leak_rgb": None, "fit.min_gain_periodic": None})
-    text = "\n".join(_threshold_lines("exact capture-model fit", {**fit, "n_periods": 3.0},
-                                      off, v))
-    assert "(needs >= 0.9; general path)" in text and "colour path off" in text
-    grid = {"rho": 0.75, "rho_lookalike": 0.4, "coherence_t": 12.0}
+    text = "\n".join(_threshold_lines("exact capture-model fit", fit, off))
+    assert "colour-verified" not in text and "colour path off" in text
+    grid = SweepResult(SweepMatch("table1-seq1", 0.75, 0.4, 100.0, 1.0, 0.5, 12.0, 2.0), "W", "")
     assert "grid rho 0.750  (needs >= 0.7)" in _threshold_lines("period-sweep grid fit", grid,
-                                                                 det, v)[0]
+                                                                 det)[0]
 
 
 # ------------------------------------------------------------------ issue 41: traps and contradictions
@@ -247,5 +248,4 @@ def test_plot_help_describes_the_figure_drawn_now(run_cli):
 
     words = _help_words(run_cli("detect", "--help").output)
     assert "the network's logit for every window" in words
-    assert "row profile" in words and "row profile" in learned_caption(Verdict(
-        False, None, 0, 1, evidence={"stage": "learned"}))
+    assert "quarter of the rows" in words and "quarter of the rows" in learned_caption(False)

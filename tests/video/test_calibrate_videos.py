@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from lishield_guard.cli import app
 from lishield_guard.config import load_config
 from lishield_guard.video.calibrate import ClipScores, calibrate_video, flag_threshold
-from lishield_guard.video.settings import VideoConfig
+from lishield_guard.settings import VideoConfig
 
 synth_video = pytest.importorskip("synth.video")
 

@@ -25,7 +25,7 @@ from lishield_guard.video.screen import (
     detect_video,
     plan_runs,
 )
-from lishield_guard.video.settings import VideoConfig, VideoLimits
+from lishield_guard.settings import VideoConfig, VideoLimits
 
 av = pytest.importorskip("av")
 synth_video = pytest.importorskip("synth.video")
