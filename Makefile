@@ -71,12 +71,17 @@ test: $(DEV_STAMP) tools
 mutants: $(DEV_STAMP)
 	$(BIN)/python scripts/mutate_rules.py
 
-# The README's generated blocks (sample output of `detect` on the demo images, figure captions,
-# exit statuses), docs/service.md's error-code table and docs/figures/verdict_*.png, from the
-# current code; `scripts/make_docs.py --check` says whether they are stale without writing.
-.PHONY: docs
+# The docs' generated blocks (README's sample output of `detect` on the demo images, figure
+# captions, exit statuses; design.md's captions; docs/service.md's error-code table), every
+# generated figure and the reviewer-page screenshot, from the current code. `make docs-check`
+# (scripts/make_docs.py --check) writes nothing: it exits 1 when a block, a figure, the
+# screenshot or a command written in the docs is stale.
+.PHONY: docs docs-check
 docs: $(DEV_STAMP)
 	$(BIN)/python scripts/make_docs.py
+
+docs-check: $(DEV_STAMP)
+	$(BIN)/python scripts/make_docs.py --check
 
 # Reproduce the shipped decision weights (docs/training.md): the photo corpus, the scene bank,
 # 17200 training examples of seed 32 (cached in out/train/data), the network and its report.

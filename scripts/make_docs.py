@@ -210,15 +210,16 @@ def image_rms(a: Path, b: Path) -> float | None:
 
 
 def render_verdict_figures(folder: Path, out: Path) -> dict[str, Path]:
-    """``detect --plot`` of the demo images in ``folder`` into ``out``/verdict_*.png."""
+    """``detect --plot`` of the demo images in ``folder`` into ``out``/verdict_*.png (one
+    ``detect`` of both, into a folder: one IMG-stem.png each)."""
+    plots = out / "plots"
+    subprocess.run([*_cli(), "detect", *DEMO_ARGS, "--plot", str(plots)], cwd=folder,
+                   capture_output=True, timeout=600, check=False)
     made = {}
     for name in ("protected", "clean"):
-        png = out / f"verdict_{name}.png"
-        subprocess.run([*_cli(), "detect", f"demo/{name}.jpg", "--plot", str(png)],
-                       cwd=folder, capture_output=True, timeout=600, check=False)
-        if not png.exists():
+        if not (plots / f"{name}.png").exists():
             raise RuntimeError(f"no figure written for demo/{name}.jpg")
-        made[png.name] = png
+        made[f"verdict_{name}.png"] = (plots / f"{name}.png").rename(out / f"verdict_{name}.png")
     return made
 
 
