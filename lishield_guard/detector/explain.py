@@ -84,14 +84,24 @@ def _template(spec: BarcodeSpec) -> dict[str, np.ndarray]:
             for c, fs in spec.channels}
 
 
-def match_specs(window: np.ndarray, specs: list[BarcodeSpec],
+def _view(window) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """(planes, grid_cpr) of a window: a `decision.spectrum_view` pair, or one window of the
+    whole-window input (`spectra.SpectralInput.x`)."""
+    if isinstance(window, tuple):
+        return window
+    return {c: window[i] for c, i in _COH.items()}, freq_grid_cpr()
+
+
+def match_specs(window, specs: list[BarcodeSpec],
                 scale_range_cpr_per_hz: tuple[float, float] | None = None) -> list[SpecFit]:
     """Best placement of every spec's tone template on one window, best spec first.
 
     Parameters
     ----------
-    window : ndarray of shape (len(CHANNELS), N_FREQ)
-        One window of `spectra.SpectralInput.x`.
+    window : (dict, ndarray) or ndarray of shape (len(CHANNELS), N_FREQ)
+        Whitened coherent log power per colour plane (``"R"``, ``"G"``, ``"B"``, ``"L"``) and
+        its log-frequency grid in cycles per analysed row (`decision.spectrum_view`, any
+        input), or one window of `spectra.SpectralInput.x`.
     specs : list of BarcodeSpec
         The configured specs.
     scale_range_cpr_per_hz : (float, float), optional
@@ -105,8 +115,8 @@ def match_specs(window: np.ndarray, specs: list[BarcodeSpec],
     list of SpecFit
         Sorted by score, highest first (empty when no spec fits on the grid).
     """
-    grid = freq_grid_cpr()
-    planes = {c: _slack_max(window[i]) for c, i in _COH.items()}
+    raw, grid = _view(window)
+    planes = {c: _slack_max(v) for c, v in raw.items()}
     n = len(grid)
     fits = []
     for spec in specs:
@@ -145,12 +155,13 @@ def match_specs(window: np.ndarray, specs: list[BarcodeSpec],
     return sorted(fits, key=lambda f: -f.score)
 
 
-def peak_tones(window: np.ndarray, *, min_level: float = 3.0, max_tones: int = 8
+def peak_tones(window, *, min_level: float = 3.0, max_tones: int = 8
                ) -> list[tuple[float, float]]:
     """Local maxima of the window's luma coherent spectrum above ``min_level`` (ln units of
-    power over the floor; 3.0 is 20x), strongest first, as (cycles per row, level)."""
-    x = window[_COH["L"]]
-    grid = freq_grid_cpr()
+    power over the floor; 3.0 is 20x), strongest first, as (cycles per row, level).
+    ``window``: as for `match_specs`."""
+    planes, grid = _view(window)
+    x = planes["L"]
     peaks = [(float(grid[i]), float(x[i])) for i in range(1, len(x) - 1)
              if x[i] >= min_level and x[i] >= x[i - 1] and x[i] > x[i + 1]]
     return sorted(peaks, key=lambda p: -p[1])[:max_tones]

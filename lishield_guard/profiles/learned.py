@@ -21,7 +21,13 @@ import numpy as np
 from lishield_guard.config import AppConfig
 from lishield_guard.decode import Decoded
 from lishield_guard.decode import decode as decode_source
-from lishield_guard.detector.decision import DecisionRecord, decision_model, rule, window_label
+from lishield_guard.detector.decision import (
+    DecisionRecord,
+    decision_model,
+    rule,
+    spectrum_view,
+    window_label,
+)
 from lishield_guard.detector.decision import measure as _measure
 from lishield_guard.detector.explain import SpecFit, match_specs, peak_tones
 from lishield_guard.detector.tones import scale_range_cpr_per_hz
@@ -179,7 +185,7 @@ class LearnedEvidence(Evidence):
              "windows": [{"where": window_label(rec.spectra, int(i)),
                           "logit": round(float(rec.logits[i]), 4)} for i in order],
              "tones_cpr": [[round(f, 5), round(v, 2)]
-                           for f, v in peak_tones(rec.spectra.x[rec.best])],
+                           for f, v in peak_tones(spectrum_view(rec.spectra, rec.best))],
              "model": self.model}
         if self.physics is not None:
             d["physics"] = self.physics
@@ -223,7 +229,7 @@ def evidence(record: DecisionRecord, config: AppConfig, *, row_scale: float = 1.
     specs = [(p.id, s) for p in config.policies for s in p.specs]
     lo, hi = scale_range_cpr_per_hz(det)
     fits = [(f, w) for w in _row_siblings(record, record.best)
-            for f in match_specs(record.spectra.x[w], [s for _, s in specs],
+            for f in match_specs(spectrum_view(record.spectra, w), [s for _, s in specs],
                                  (lo * row_scale, hi * row_scale))]
     best_fit, w_best = max(fits, key=lambda fw: fw[0].score) if fits else (None, None)
     policy = next((pid for pid, s in specs if best_fit and s.name == best_fit.spec),
@@ -252,7 +258,11 @@ def evidence(record: DecisionRecord, config: AppConfig, *, row_scale: float = 1.
 
 def _row_siblings(rec: DecisionRecord, window: int) -> list[int]:
     """The windows of the same axis and column range as ``window`` (every row range), the
-    window itself first."""
+    window itself first; for the time-frequency input, every level of the same axis."""
+    if len(rec.spectra.windows[window]) == 2:
+        axis = rec.spectra.axes[window]
+        return [window, *(i for i, a in enumerate(rec.spectra.axes) if a == axis
+                          and i != window)]
     axis, (c0, c1, _, _) = rec.spectra.axes[window], rec.spectra.windows[window]
     same = [i for i, (a, w) in enumerate(zip(rec.spectra.axes, rec.spectra.windows,
                                              strict=True))
