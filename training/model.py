@@ -63,9 +63,12 @@ def export(net: DecisionNet, weights: str | Path, card: dict) -> None:
     for i, m in enumerate((net.hidden, net.out)):
         arrays[f"dense{i}_w"] = m.weight.detach().cpu().numpy().T.astype(np.float32).copy()
         arrays[f"dense{i}_b"] = m.bias.detach().cpu().numpy().astype(np.float32)
+    from lishield_guard.data_files import file_digest
+
     weights = Path(weights)
     weights.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(weights, **arrays)
     meta = {"input_version": INPUT_VERSION, "kernel": KERNEL, "dilations": list(DILATIONS),
-            "widths": list(WIDTHS), "n_dense": 2, **card}
+            "widths": list(WIDTHS), "n_dense": 2, **card,
+            "weights_digest": file_digest(weights)}
     weights.with_suffix(".json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")

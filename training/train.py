@@ -182,11 +182,12 @@ def image_logits(net, x, meta, mask, idx: np.ndarray, batch: int = 512) -> np.nd
 
     out = []
     net.eval()
+    dev = next(net.parameters()).device
     with torch.no_grad():
         for s in range(0, len(idx), batch):
             b = idx[s:s + batch]
-            xb = torch.from_numpy(dequantise(x[b], meta[b]))
-            out.append(net(xb, torch.from_numpy(mask[b])).amax(dim=1).numpy())
+            xb = torch.from_numpy(dequantise(x[b], meta[b])).to(dev)
+            out.append(net(xb, torch.from_numpy(mask[b]).to(dev)).amax(dim=1).cpu().numpy())
     net.train()
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
@@ -199,17 +200,18 @@ def _val_stats(z: np.ndarray, y: np.ndarray) -> dict:
 
 def fit(data: tuple, train_idx: np.ndarray, val_idx: np.ndarray, *, epochs: float, seed: int,
         batch: int = 128, lr: float = 2e-3, log_every: int = 25_000,
-        budget_s: float = float("inf")) -> tuple:
+        budget_s: float = float("inf"), device: str = "cpu") -> tuple:
     """Train `training.model.DecisionNet` on ``train_idx`` for ``epochs`` passes (fractions
-    allowed); return (net, curve) where the curve logs the held-out loss and AUC against the
-    examples seen."""
+    allowed) on ``device``; return (net on the CPU, curve) where the curve logs the held-out
+    loss and AUC against the examples seen."""
     import torch
 
     from training.model import DecisionNet
 
     x, meta, mask, y = data
     torch.manual_seed(seed)
-    net = DecisionNet()
+    dev = torch.device(device)
+    net = DecisionNet().to(dev)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps = max(1, int(epochs * len(train_idx)) // batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps,
@@ -220,9 +222,9 @@ def fit(data: tuple, train_idx: np.ndarray, val_idx: np.ndarray, *, epochs: floa
     curve, seen, t0, running = [], 0, time.time(), []
     for k in range(steps):
         b = order[k * batch:(k + 1) * batch]
-        xb = torch.from_numpy(dequantise(x[b], meta[b]))
-        z = net(xb, torch.from_numpy(mask[b])).amax(dim=1)
-        loss = torch.nn.functional.binary_cross_entropy_with_logits(z, yt[b])
+        xb = torch.from_numpy(dequantise(x[b], meta[b])).to(dev)
+        z = net(xb, torch.from_numpy(mask[b]).to(dev)).amax(dim=1)
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(z, yt[b].to(dev))
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -241,7 +243,7 @@ def fit(data: tuple, train_idx: np.ndarray, val_idx: np.ndarray, *, epochs: floa
             print(f"  training budget of {budget_s:g} s spent at {seen} examples",
                   file=sys.stderr)
             break
-    return net, curve
+    return net.cpu(), curve
 
 
 def _commit() -> str:
@@ -270,7 +272,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="",
                     help="comma-separated training-set sizes for the size curve, e.g. "
                          "50000,150000 (each a separate run of the same length)")
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="worker processes for the data, threads for training")
+    ap.add_argument("--device", default="auto", help="cpu, cuda or auto (default: a GPU when "
+                    "there is one); with a GPU and more cores, raise --jobs and --n")
+    ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--bank", default="out/scenebank", help="scene bank (training/scenes.py)")
     ap.add_argument("--cache", default="out/train/data", help="generated examples (resumable)")
     ap.add_argument("--out", default="out/train/model", help="where the weights and card go")
@@ -292,6 +298,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(max(1, a.jobs))
+    device = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" \
+        else a.device
     y = np.array([r["label"] for r in recs], np.int64)
     ok = _trainable(recs)
     n_val = min(a.val, n // 5)
@@ -302,13 +310,13 @@ def main(argv: list[str] | None = None) -> int:
     for size in [int(v) for v in a.sizes.split(",") if v.strip()]:
         sub = train_all[train_all < size]
         passes = a.epochs * len(train_all) / max(len(sub), 1)  # same number of steps
-        _, c = fit(data, sub, val_idx, epochs=passes, seed=a.train_seed,
-                   log_every=10**12)
+        _, c = fit(data, sub, val_idx, epochs=passes, seed=a.train_seed, batch=a.batch,
+                   log_every=10**12, device=device)
         size_curve.append({"train_examples": int(len(sub)), **c[-1]})
         print(json.dumps(size_curve[-1]), file=sys.stderr, flush=True)
     t1 = time.time()
     net, curve = fit(data, train_all, val_idx, epochs=a.epochs, seed=a.train_seed,
-                     budget_s=a.fit_budget_s)
+                     batch=a.batch, budget_s=a.fit_budget_s, device=device)
     t_fit = time.time() - t1
     size_curve.append({"train_examples": int(len(train_all)), **curve[-1]})
     from training.data import MONO_PRESETS, RGB_PRESETS
@@ -319,6 +327,7 @@ def main(argv: list[str] | None = None) -> int:
             "n_examples": n, "n_train": int(len(train_all)), "n_val": int(len(val_idx)),
             "epochs": a.epochs, "min_train_contrast": MIN_TRAIN_CONTRAST,
             "generate_s": round(t_gen, 1), "fit_s": round(t_fit, 1), "jobs": a.jobs,
+            "device": device, "batch": a.batch,
             "curves": curve, "size_curve": size_curve}
     export(net, Path(a.out) / "decision_model.npz", card)
     print(f"wrote {a.out}/decision_model.npz (held-out AUC {curve[-1]['val_auc']:.4f})",
