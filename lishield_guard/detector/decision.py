@@ -147,7 +147,8 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
     usable = {ax: p for ax, p in a["profiles"].items()
               if int(a["keep"][ax].sum()) >= MIN_USABLE_BLOCKS}
     if timefreq:
-        spectra = tfinput.profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"])
+        spectra = tfinput.profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"],
+                                         skipped=a["skipped"])
     else:
         spectra = axes_input(usable, full_scale=a["full_scale"], skipped=a["skipped"],
                              keep=a["keep"])

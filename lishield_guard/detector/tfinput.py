@@ -47,6 +47,7 @@ INPUT_VERSION = "tf-pyramid-v2"
 FRAME_LINES = 64
 HOP_LINES = 32
 NFFT = 128  # frames zero-padded twice over
+FIRST_BIN = 4  # the FFT bin (of NFFT) of the log grid's lowest frequency, 2 cycles per frame
 BINS_PER_OCTAVE = 24
 N_FREQ = 96  # 4 octaves: 2 cycles per frame .. 0.5 cycles per (decimated) line
 F_MAX_CPR = 0.5
@@ -79,6 +80,8 @@ class TimeFreqInput:
         The column window (start, end fractions across the lines) each instance kept.
     n_lines : dict
         Axis name -> lines in its profiles.
+    skipped : tuple of str
+        Axes not analysed and why.
     """
 
     x: np.ndarray
@@ -86,6 +89,7 @@ class TimeFreqInput:
     levels: tuple[int, ...]
     windows: tuple[tuple[float, float], ...]
     n_lines: dict
+    skipped: tuple[str, ...] = ()
 
 
 @cache
@@ -154,14 +158,27 @@ def _floor(power: np.ndarray) -> np.ndarray:
     return np.exp((cs[..., hi] - cs[..., lo]) / (hi - lo))
 
 
-def _frames(logp: np.ndarray, level: int) -> np.ndarray | None:
+def _pyramid(logp: np.ndarray) -> list[np.ndarray]:
+    """The profiles of every level that holds a frame: level k averages 2^k lines (pairwise
+    means of the level below, the odd last line dropped)."""
+    out = [logp]
+    while len(out) < MAX_LEVELS and out[-1].shape[-1] // 2 >= FRAME_LINES:
+        x = out[-1]
+        n = x.shape[-1] // 2
+        out.append((x[..., 0:2 * n:2] + x[..., 1:2 * n:2]) * np.float32(0.5))
+    return out if logp.shape[-1] >= FRAME_LINES else []
+
+
+def _frames(logp: np.ndarray, level: int, x: np.ndarray | None = None) -> np.ndarray | None:
     """Detrended, tapered frames of the level: (3, N_BLOCKS, n_frames, FRAME_LINES), or None
-    when the level holds no frame."""
-    f = 1 << level
-    n = logp.shape[-1] // f
-    if n < FRAME_LINES:
-        return None
-    x = logp[..., :n * f].reshape(*logp.shape[:-1], n, f).mean(axis=-1) if f > 1 else logp
+    when the level holds no frame. ``x``: the level's profiles (`_pyramid`), when known."""
+    if x is None:
+        f = 1 << level
+        n = logp.shape[-1] // f
+        if n < FRAME_LINES:
+            return None
+        x = logp[..., :n * f].reshape(*logp.shape[:-1], n, f).mean(axis=-1) if f > 1 else logp
+    n = x.shape[-1]
     t = (n - FRAME_LINES) // HOP_LINES + 1
     start = (n - (FRAME_LINES + HOP_LINES * (t - 1))) // 2
     idx = start + HOP_LINES * np.arange(t)[:, None] + np.arange(FRAME_LINES)[None, :]
@@ -183,8 +200,8 @@ def _turns(c: np.ndarray) -> np.ndarray:
     return np.clip(out, *TURN_CLIP)
 
 
-def _coherent(spec: np.ndarray, keep: np.ndarray, sel: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _coherent(spec: np.ndarray, keep: np.ndarray, sel: np.ndarray, *, incoherent: bool = True
+               ) -> tuple[np.ndarray, np.ndarray | None]:
     """Whitened coherent and incoherent power of one plane's block spectra.
 
     spec: (N_BLOCKS, n_frames, nf) complex; sel: (n_windows, N_BLOCKS) 0/1. Every block is
@@ -200,14 +217,16 @@ def _coherent(spec: np.ndarray, keep: np.ndarray, sel: np.ndarray
         len(sel), nt, nf)
     den = (sel @ inv)[:, None, :] + _EPS
     coh = (num.real ** 2 + num.imag ** 2) / den
+    if not incoherent:
+        return coh, None
     pw = (spec.real ** 2 + spec.imag ** 2) * inv[:, None, :]
     n_kept = np.maximum(sel @ keep.astype(np.float32), 1.0)
     inc = (sel @ pw.reshape(nb, -1)).reshape(len(sel), nt, nf) / n_kept[:, None, None]
     return coh, inc
 
 
-def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
-                    ) -> tuple[np.ndarray, int] | None:
+def level_instances(logp: np.ndarray, keep: np.ndarray, level: int,
+                    decimated: np.ndarray | None = None) -> tuple[np.ndarray, int] | None:
     """The instance of one axis and level, and the column window it kept.
 
     Parameters
@@ -218,6 +237,8 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
         Usable blocks (others get no weight and stay out of the noise estimate).
     level : int
         Pyramid level (lines averaged 2^level at a time).
+    decimated : ndarray, optional
+        The level's profiles (`_pyramid`), when already computed.
 
     Returns
     -------
@@ -227,7 +248,7 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
     """
     from scipy.fft import rfft
 
-    fr = _frames(logp, level)
+    fr = _frames(logp, level, decimated)
     if fr is None:
         return None
     n_frames = fr.shape[2]
@@ -239,7 +260,8 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
     coh = coh @ lm  # (windows, t, N_FREQ)
     w = int(np.argmax(coh.max(axis=(1, 2))))
     c = coh[w]
-    rgb = [_coherent(spec[i], use, sel[w:w + 1])[0][0] @ lm for i in range(3)]  # (t, N_FREQ)
+    rgb = [_coherent(spec[i], use, sel[w:w + 1], incoherent=False)[0][0] @ lm
+           for i in range(3)]  # (t, N_FREQ)
     x = np.empty((len(CHANNELS), N_FREQ), np.float32)
     powers = [c.mean(axis=0), c.max(axis=0), (inc[w] @ lm).mean(axis=0),
               *(p.mean(axis=0) for p in rgb), *(p.max(axis=0) for p in rgb)]
@@ -252,7 +274,7 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int
 
 
 def profiles_input(profiles: dict[int, np.ndarray], *, full_scale: float,
-                   keep: dict | None = None) -> TimeFreqInput:
+                   keep: dict | None = None, skipped: tuple[str, ...] = ()) -> TimeFreqInput:
     """The instances of every axis and level of an image's block profiles.
 
     Parameters
@@ -264,14 +286,16 @@ def profiles_input(profiles: dict[int, np.ndarray], *, full_scale: float,
         Pixel value of white; profiles are floored at 1/512 of it before the logarithm.
     keep : dict, optional
         Axis -> usable blocks (`usable.usable_blocks`); default every block.
+    skipped : tuple of str
+        Axes not analysed and why (kept in the result).
     """
     xs, axes, levels, windows, n_lines = [], [], [], [], {}
     for axis, prof in sorted(profiles.items()):
         logp = np.log(np.maximum(prof, np.float32(full_scale / 512.0))).astype(np.float32)
         k = np.ones(N_BLOCKS, bool) if keep is None else np.asarray(keep[axis], bool)
         n_lines[AXIS_NAMES[axis]] = int(prof.shape[-1])
-        for level in range(MAX_LEVELS):
-            got = level_instances(logp, k, level)
+        for level, decimated in enumerate(_pyramid(logp)):
+            got = level_instances(logp, k, level, decimated)
             if got is None:
                 break
             xs.append(got[0])
@@ -279,4 +303,5 @@ def profiles_input(profiles: dict[int, np.ndarray], *, full_scale: float,
             levels.append(level)
             windows.append(COL_WINDOWS[got[1]])
     x = np.stack(xs) if xs else np.zeros((0, len(CHANNELS), N_FREQ), np.float32)
-    return TimeFreqInput(x, tuple(axes), tuple(levels), tuple(windows), n_lines)
+    return TimeFreqInput(x, tuple(axes), tuple(levels), tuple(windows), n_lines,
+                         tuple(skipped))
