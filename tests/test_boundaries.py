@@ -85,14 +85,14 @@ def test_command_functions_are_short():
 
 
 # The detector's stage modules in the order one image meets them (the profiles run them):
-# row profiles and usable blocks, spectra and tone tracks, the first stage, the learned
-# decision and its explanation, then the cascade's tones, fold, sweep, free-running timing,
+# row profiles and usable blocks, spectra, the time-frequency input and the first look,
+# tone tracks, the first stage, the learned decision and its explanation, then the cascade's tones, fold, sweep, free-running timing,
 # exact fit, pass rules and its search over one axis; the paper's Algorithm 1 is its own
 # profile, last. SHARED modules (typed results and stage names, shared numerics, emitter
 # variants) import no stage.
-STAGE_ORDER = ("profiles", "usable", "spectra", "tfinput", "tracks", "screen", "learned",
-               "decision", "explain", "tones", "fold", "sweep", "freerun", "fit", "rules",
-               "search", "paper")
+STAGE_ORDER = ("profiles", "usable", "spectra", "tfinput", "firstlook", "tracks", "screen",
+               "learned", "decision", "explain", "tones", "fold", "sweep", "freerun", "fit",
+               "rules", "search", "paper")
 SHARED = ("results", "numerics", "emitters")
 
 

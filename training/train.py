@@ -200,10 +200,11 @@ def _val_stats(z: np.ndarray, y: np.ndarray) -> dict:
 
 def fit(data: tuple, train_idx: np.ndarray, val_idx: np.ndarray, *, epochs: float, seed: int,
         batch: int = 128, lr: float = 2e-3, log_every: int = 25_000,
-        budget_s: float = float("inf"), device: str = "cpu") -> tuple:
+        budget_s: float = float("inf"), device: str = "cpu", on_log=None) -> tuple:
     """Train `training.model.DecisionNet` on ``train_idx`` for ``epochs`` passes (fractions
     allowed) on ``device``; return (net on the CPU, curve) where the curve logs the held-out
-    loss and AUC against the examples seen."""
+    loss and AUC against the examples seen. ``on_log(net, curve)``, when given, runs at each
+    logged point (a checkpoint, so that a killed run keeps its progress)."""
     import torch
 
     from training.model import DecisionNet
@@ -239,6 +240,8 @@ def fit(data: tuple, train_idx: np.ndarray, val_idx: np.ndarray, *, epochs: floa
             running = []
             curve.append(row)
             print(json.dumps(row), file=sys.stderr, flush=True)
+            if on_log is not None:
+                on_log(net, curve)
         if time.time() - t0 > budget_s:
             print(f"  training budget of {budget_s:g} s spent at {seen} examples",
                   file=sys.stderr)
@@ -314,13 +317,18 @@ def main(argv: list[str] | None = None) -> int:
                    log_every=10**12, device=device)
         size_curve.append({"train_examples": int(len(sub)), **c[-1]})
         print(json.dumps(size_curve[-1]), file=sys.stderr, flush=True)
+    from training.model import export
+
+    def checkpoint(net, curve):
+        export(net, Path(a.out) / "checkpoint.npz",
+               {"partial": True, "curves": curve})
+
     t1 = time.time()
     net, curve = fit(data, train_all, val_idx, epochs=a.epochs, seed=a.train_seed,
-                     batch=a.batch, budget_s=a.fit_budget_s, device=device)
+                     batch=a.batch, budget_s=a.fit_budget_s, device=device, on_log=checkpoint)
     t_fit = time.time() - t1
     size_curve.append({"train_examples": int(len(train_all)), **curve[-1]})
     from training.data import MONO_PRESETS, RGB_PRESETS
-    from training.model import export
 
     card = {"training_commit": _commit(), "data_seed": a.seed,
             "specs": list(MONO_PRESETS + RGB_PRESETS), "train_seed": a.train_seed,
