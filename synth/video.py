@@ -46,7 +46,10 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import math
+import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
@@ -535,14 +538,24 @@ def render_video_item(p: dict, *, frame_fn: Callable | None = None) -> tuple[byt
     return data, rec
 
 
+PARTS_DIR = ".parts"  # per-clip records of an unfinished set (a rerun resumes from them)
+
+
 def _work(args: tuple) -> dict:
     index, label, seed, mix, size, vmix, out_dir = args
+    part = Path(out_dir) / PARTS_DIR / f"{index:06d}.json"
+    if part.exists():
+        return json.loads(part.read_text(encoding="utf-8"))
     p = sample_video_item(label, seed=item_seed(seed, index), mix=mix, size=size,
                           video_mix=vmix)
     data, rec = render_video_item(p)
     name = f"{index:06d}{CODECS[p['codec']][2]}"
     (Path(out_dir) / name).write_bytes(data)
-    return {"file": name, "index": index, **rec}
+    record = {"file": name, "index": index, **rec}
+    tmp = part.with_suffix(".tmp")
+    tmp.write_text(json.dumps(record, sort_keys=True), encoding="utf-8")
+    os.replace(tmp, part)
+    return record
 
 
 def write_video_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: int,
@@ -553,7 +566,9 @@ def write_video_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: in
 
     Same shape as `synth.dataset.write_dataset`: the label order and every clip derive from
     ``seed`` (clip i uses ``item_seed(seed, i)``), so the files are byte-identical for any
-    ``jobs``.
+    ``jobs``. Resumable: each finished clip leaves its record in ``out_dir/.parts``, which a
+    rerun with the same arguments reads instead of rendering again (the folder is removed
+    once the manifest is written).
 
     Parameters
     ----------
@@ -585,8 +600,10 @@ def write_video_dataset(out_dir: str | Path, *, n_pos: int, n_neg: int, seed: in
     parse_video_size(size)
     labels = label_order(n_pos, n_neg, seed=seed, mix=mix, jobs=jobs)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    (out / PARTS_DIR).mkdir(parents=True, exist_ok=True)
     tasks = [(i, int(labels[i]), int(seed), mix, size, vmix, str(out))
              for i in range(len(labels))]
     records = run_tasks(_work, tasks, jobs=jobs, progress=progress, unit="clip", chunksize=1)
-    return write_manifest(out, records)
+    manifest = write_manifest(out, records)
+    shutil.rmtree(out / PARTS_DIR, ignore_errors=True)
+    return manifest

@@ -177,3 +177,26 @@ def test_cli_plays_the_presets_own_f_b_and_prints_one_line(tmp_path):
     (line,) = res.stdout.splitlines()
     assert line.startswith(f"{out} preset=table1-seq1 f_B=400Hz frames=6 ") and len(line) < 200
     assert get_preset("table1-seq1").f_b_hz == 400.0
+
+
+def test_an_interrupted_video_set_resumes_from_its_finished_clips(tmp_path):
+    """A clip whose record is in ``.parts`` is not rendered again; the parts go once the
+    manifest is written."""
+    import dataclasses
+
+    from synth.dataset import resolve_mix
+    from synth.video import PARTS_DIR, VIDEO_MIXES, write_video_dataset
+
+    kw = dict(n_pos=1, n_neg=1, seed=9, size=(64, 96), progress=False,
+              mix=dataclasses.replace(resolve_mix("default"), real_photo_prob=0.0),
+              video_mix=dataclasses.replace(VIDEO_MIXES["default"],
+                                            duration_range_s=(0.15, 0.2)))
+    parts = tmp_path / PARTS_DIR
+    parts.mkdir()
+    (parts / "000000.json").write_text(json.dumps({"file": "000000.mp4", "index": 0,
+                                                   "label": 1, "resumed": True}))
+    manifest = write_video_dataset(tmp_path, **kw)
+    rows = [json.loads(line) for line in manifest.read_text().splitlines()]
+    assert rows[0]["resumed"] and not (tmp_path / "000000.mp4").exists()
+    assert (tmp_path / rows[1]["file"]).exists() and "resumed" not in rows[1]
+    assert not parts.exists()
