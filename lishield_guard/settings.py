@@ -367,12 +367,21 @@ class LearnedConfig(_Group):
         calibration writes it beside the threshold. A config whose digest is not that of the
         configured weights is refused when loaded (`lishield_guard.config.load_config`).
         None: not recorded (a config written before thresholds were bound to their model).
+    first_look_ln : float or None
+        The first look's threshold (`detector.firstlook`): an image whose largest whitened
+        coherent luma power stays below this is clean without the full decision; the others
+        go on to it. ln units over the noise floor. Set by calibration for the weights of
+        ``model_digest``, below the smallest first-look peak of every image the full decision
+        flags there, with a margin (`calibration.firstlook`). None (``false`` in TOML): no
+        first look, every image goes on to the full decision (the safe value for weights it
+        was not calibrated with).
     """
 
     threshold_logit: float = 4.491605468030307  # calibrate, 2026-11-26: see default.toml
     model: str | None = None
     min_explain_score: float = 1.0
     model_digest: str | None = None
+    first_look_ln: float | None = None
 
     def __post_init__(self) -> None:
         _number(self.threshold_logit, "learned.threshold_logit", -FINITE, FINITE)
@@ -380,6 +389,11 @@ class LearnedConfig(_Group):
         _need(self.model is None or (isinstance(self.model, str) and self.model),
               "learned.model a path or false", self.model)
         _digest_ok(self.model_digest, "learned.model_digest")
+        if self.first_look_ln is not None:
+            _need(not isinstance(self.first_look_ln, bool), "a number for learned."
+                  "first_look_ln (or false: off)", self.first_look_ln)
+            _number(self.first_look_ln, "learned.first_look_ln (or false: off)", -FINITE,
+                    FINITE)
 
 
 STAGES: dict[str, type] = {"profiles": ProfileConfig, "learned": LearnedConfig,

@@ -149,11 +149,17 @@ def learned_scores(logits_clean: np.ndarray, logits_pos: np.ndarray,
 
 def learned_record(source, config: AppConfig) -> dict:
     """The learned profile's per-image measurement for calibration (its own `decode` and
-    `measure`): the image logit and the milliseconds decode + measurement took (``logit`` is
-    None for an undetermined image)."""
+    `measure`, luma first as detection decodes it when the first look is on): the image logit,
+    its first look (`detector.firstlook`: ``first_look`` the peak, ln units, -inf when none;
+    ``first_look_usable``), measured in the same pass for `calibration.firstlook`, and the
+    milliseconds decode + measurement took (``logit`` is None for an undetermined image)."""
     t0 = time.perf_counter()
-    rec = learned.measure(learned.decode(source, config), config, Timer())
+    rec = learned.measure(learned.decode(source, config, luma_first=True), config, Timer(),
+                          full=True)
+    look = rec.first_look
     return {"logit": None if rec.why else rec.decision.logit,
+            "first_look": float("-inf") if look is None else look.peak,
+            "first_look_usable": bool(look is not None and look.usable),
             "learned_ms": (time.perf_counter() - t0) * 1e3}
 
 

@@ -97,6 +97,7 @@ def console_report(info: dict, best, n_settings: int, summary_path: Path) -> str
         f"the tuning part alone would call it {'met' if info['tune_met'] else 'not met'}",
         f"showing FAR <= {tf:g} needs >= {need[0]} certification images with no false alarm "
         f"({need[1]} with one, {need[2]} with two)",
+        *([info["first_look"]["line"]] if info.get("first_look") else []),
         f"config: {info['config_out']}", f"report: {summary_path}"]
     return "\n".join(lines)
 
@@ -314,6 +315,12 @@ def _summary_md(summaries, best, cert, info: dict, paths: dict) -> str:
             tcell = f"{t['detected']}/{t['n']}" if t else "-"
             lines.append(f"| {k} | {v} | {tcell} | {d['detected']}/{d['n']} | "
                          f"{d['rate']:.3f} |")
+    if info.get("first_look"):
+        fl = info["first_look"]
+        lines += ["", "## First look (docs/first_look.md)", "", fl["line"] + ".", "",
+                  f"Margin {fl['margin_ln']:.4f} ln below the smallest first-look peak among "
+                  f"the {fl['n_flagged']} images the chosen decision flags (clean and positives,"
+                  f" both parts); {fl['n_flagged_cleared']} of them cleared."]
     nm = info.get("null_model")
     lines += ["", "## Null model vs measurement (default profile, chosen setting, tuning part)",
               ""]

@@ -41,6 +41,7 @@ from lishield_guard.calibration.evidence import (
     learned_thresholds,
     paper_scores,
 )
+from lishield_guard.calibration.firstlook import FirstLookCalibration, calibrate_first_look
 from lishield_guard.calibration.report import config_header, plan_text, write_report
 from lishield_guard.calibration.selection import group_labels, select_setting, summarise
 from lishield_guard.calibration.split import source_groups, source_keys, split_parts, stratum_key
@@ -366,9 +367,13 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
     header = config_header(date=date, clean=clean, positives=positives, base=base, best=best,
                            split=split, parts=parts, target_far=target_far, met=met,
                            quick=quick, cert_claim=cert_claim)
-    if best.setting.profile == learned.NAME:  # the threshold is bound to these weights
+    first = None
+    if best.setting.profile == learned.NAME:  # the thresholds are bound to these weights
+        first = _first_look(ok_c, ok_p, chosen_det)
+        header += "\n" + first.line()
         chosen_det = chosen_det.replace(learned=chosen_det.learned.replace(
-            model_digest=decision_model(chosen_det).digest))
+            model_digest=decision_model(chosen_det).digest,
+            first_look_ln=first.first_look_ln))
     cfg_out = dataclasses.replace(base, detector=chosen_det, source=str(out), header="")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(dump_config(cfg_out, header=header), encoding="utf-8")
@@ -381,6 +386,7 @@ def run(clean: list[Path], positives: Path, *, out: Path, report: Path,
             "tune_met": tune_met, "images_needed": cert_claim.images_needed, "needs": needs,
             "config_out": str(out), "date": date, "quick": quick,
             "null_model": null, "fa_by_subset": fa_by,
+            "first_look": None if first is None else first.to_dict() | {"line": first.line()},
             "fa_files": {k: v[:50] for k, v in fa_files.items()},
             "evidence_s": t_evidence, "total_s": time.perf_counter() - t_start,
             "cached": sum(1 for r, _, _ in ok_c + ok_p if r.get("cached")),
@@ -401,6 +407,19 @@ def calibration_cache(folder: Path | None, base: AppConfig) -> EvidenceCache:
     a retrained model never reuses the old model's logits."""
     return EvidenceCache(folder, repr(base.detector), repr(base.policies), repr(base.limits),
                          decision_model(base.detector).digest)
+
+
+def _first_look(ok_c, ok_p, det) -> FirstLookCalibration:
+    """``learned.first_look_ln`` for the chosen decision (`calibration.firstlook`): below the
+    first-look peak of every image, clean or positive, both parts, that it flags; from the
+    peaks `learned_record` measured in the same pass as the logits."""
+    from lishield_guard.detector.decision import rule
+
+    def cols(ok):
+        return ([r["first_look"] for r, _, _ in ok], [r["first_look_usable"] for r, _, _ in ok],
+                [r["logit"] is not None and bool(rule(r["logit"], det)) for r, _, _ in ok])
+
+    return calibrate_first_look(*cols(ok_c), *cols(ok_p))
 
 
 def _verdict_blocks(ok_c, ok_p, want, base: AppConfig, grid, pgrid, n_tc: int,
