@@ -72,7 +72,7 @@ def _kind(manifest_row: dict | None, default: str) -> str:
         return default
     if int(manifest_row.get("label", 0)) == 1:
         return "barcodes"
-    return "look-alikes" if manifest_row.get("kind") not in (None, "clean", "photo") \
+    return "look-alikes" if manifest_row.get("kind") not in (None, "clean", "photo", "real_photo") \
         else default
 
 
