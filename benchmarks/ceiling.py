@@ -114,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-mf", action="store_true", help="skip the matched filter")
     ap.add_argument("--per-image", help="JSON lines of every image's scores")
     ap.add_argument("--reuse", help="read the per-image scores from this file instead")
+    ap.add_argument("--mf-from", help="take the matched filter's scores from this --per-image "
+                    "file of the same set (the model is scored afresh)")
     a = ap.parse_args(argv)
     from lishield_guard.threads import one_thread_per_worker
 
@@ -123,9 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     if a.reuse:
         rows = [json.loads(line) for line in Path(a.reuse).read_text().splitlines()]
     else:
-        args = [(str(folder), it, a.model, not a.no_mf) for it in items.values()]
+        args = [(str(folder), it, a.model, not (a.no_mf or a.mf_from))
+                for it in items.values()]
         with ProcessPoolExecutor(a.jobs, initializer=one_thread_per_worker) as pool:
             rows = list(pool.map(_score, args, chunksize=4))
+        if a.mf_from:
+            lines = Path(a.mf_from).read_text().splitlines()
+            mf = {r["file"]: r.get("mf", r.get("score")) for r in map(json.loads, lines)}
+            rows = [{**r, "mf": mf[r["file"]]} for r in rows]
     if a.per_image:
         Path(a.per_image).write_text("".join(json.dumps(r) + "\n" for r in rows))
     thresholds = {f"model @FPR<={a.fpr:g}": ("logit", threshold(
@@ -135,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     if not a.no_mf:
         thresholds[f"matched filter @FPR<={a.fpr:g}"] = ("mf", threshold(
             [r["mf"] for r in rows if r["label"] == 0], a.fpr))
-    for name, (key, thr) in thresholds.items():
+    for name, (_key, thr) in thresholds.items():
         print(f"{name}: threshold {thr:.3f}")
     und = sum(r["logit"] is None for r in rows)
     print(f"undetermined for the model: {und}")

@@ -1,11 +1,12 @@
 """The figure of a default-profile (learned) verdict: what the network saw and what decided.
 
 Three panels, drawn from the record the decision used (`profiles.learned.LearnedEvidence`:
-no second decode, measure or rule): the logit of every window against the threshold, the
-deciding window's whitened coherent spectrum on the log-frequency grid with the named spec's
-tones marked, and the deciding column range's spectrum in each quarter of the rows (a
-barcode's tones take turns from slot to slot; a steady light's stay). matplotlib is used
-through its object-oriented API only (threads of the service).
+no second decode, measure or rule): the logit of every axis and pyramid level against the
+threshold; the deciding instance's whitened coherent spectrum on the log-frequency grid (over
+the frames: mean and largest) with the named spec's tones marked; and its turn channels, how
+the power at two frequencies comes and goes over the frames (a white barcode's tones take
+turns from slot to slot, a dimmed lamp's harmonics stay). matplotlib is used through its
+object-oriented API only (threads of the service).
 """
 
 from __future__ import annotations
@@ -19,19 +20,20 @@ from lishield_guard.verdict import verdict_title
 
 __all__ = ["learned_caption", "learned_figure"]
 
-CHANNEL_COLOURS = {"W": "k", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
-QUARTERS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))  # row windows of the bottom panel
+CHANNEL_COLOURS = {"W": "k", "L": "k", "R": "tab:red", "G": "tab:green", "B": "tab:blue"}
 
 
 def learned_caption(flagged: bool) -> str:
     """What `learned_figure` shows, in words (``flagged``: the rule's answer)."""
-    lead = "the window that decided" if flagged else "the highest-scoring window"
-    return ("Top: the network's logit for every window (axis and row range down, column range "
-            "across); crosses mark those at or above the calibrated threshold. Middle: "
-            f"{lead}'s whitened coherent spectrum (luma and the "
-            "colour planes) on the log-frequency axis, with the tones of the configured spec "
-            "that explains it best. Bottom: the same column range's luma spectrum in each "
-            "quarter of the rows: a barcode's tones take turns, a steady light's stay.")
+    lead = "the instance that decided" if flagged else "the highest-scoring instance"
+    return ("Top: the network's logit for every axis and pyramid level (frames of 64 to 2048 "
+            "lines) against the calibrated threshold. Middle: "
+            f"{lead}'s whitened coherent spectrum (luma averaged over the frames and at its "
+            "largest, and the colour planes) on the log-frequency axis, with the tones of the "
+            "configured spec that explains it best. Bottom: how the power at two frequencies "
+            "comes and goes over the frames (blue: they take turns, as a barcode's tones do; "
+            "red: together, as a lamp on part of the frame; white: steady, as a dimmed "
+            "lamp's harmonics).")
 
 
 def learned_figure(verdict, ev):
@@ -50,62 +52,60 @@ def learned_figure(verdict, ev):
     """
     from matplotlib.figure import Figure
 
-    from lishield_guard.detector.spectra import CHANNELS, COL_WINDOWS, ROW_WINDOWS, freq_grid_cpr
+    from lishield_guard.detector.decision import spectrum_view
+    from lishield_guard.detector.tfinput import CHANNELS, FRAME_LINES, TURN_OFFSETS
 
     rec = ev.record
+    inp = rec.spectra
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
-    ax_units, ax_spec, ax_rows = fig.subplots(3, 1, height_ratios=[1.0, 1.4, 1.1])
+    ax_units, ax_spec, ax_turn = fig.subplots(3, 1, height_ratios=[0.9, 1.4, 1.1])
     fig.suptitle(verdict_title(verdict), fontsize=14, fontweight="bold",
                  color="crimson" if verdict.protected else "seagreen")
     thr = ev.threshold_logit
-    n_c = len(COL_WINDOWS)
-    grid_logits = rec.logits.reshape(-1, n_c)  # (axes x row windows, column windows)
-    im = ax_units.imshow(grid_logits, aspect="auto", cmap="magma", interpolation="nearest")
-    fig.colorbar(im, ax=ax_units, label="logit")
-    hits = np.argwhere(grid_logits >= thr)
-    ax_units.scatter(hits[:, 1], hits[:, 0], marker="x", color="cyan", s=20,
-                     label=f"logit >= threshold {thr:.2f}")
-    row_labels = [f"{ax}, lines {a:.0%}-{z:.0%}" for ax in dict.fromkeys(rec.spectra.axes)
-                  for a, z in ROW_WINDOWS]
-    ax_units.set_yticks(range(len(row_labels)), row_labels, fontsize=6)
-    ax_units.set_xticks(range(n_c), [f"{a:.0%}-{z:.0%}" for a, z in COL_WINDOWS], fontsize=7)
-    ax_units.set_xlabel("column range across the lines")
-    if len(hits):
-        ax_units.legend(fontsize=8, loc="upper right")
+    labels = [f"{a}\n{FRAME_LINES << lv}" for a, lv in zip(inp.axes, inp.levels, strict=True)]
+    colours = ["crimson" if z >= thr else "slategray" for z in rec.logits]
+    ax_units.bar(range(len(rec.logits)), rec.logits, color=colours)
+    ax_units.axhline(thr, color="k", ls="--", lw=1, label=f"threshold {thr:.2f}")
+    ax_units.set_xticks(range(len(labels)), labels, fontsize=7)
+    ax_units.set_xlabel("axis, and the frame length in lines (pyramid level)")
+    ax_units.set_ylabel("logit")
+    ax_units.legend(fontsize=8, loc="upper right")
     ax_units.set_title(textwrap.fill(ev.reason, 140), loc="left", fontsize=8)
 
     w = rec.best
-    grid = freq_grid_cpr()
-    x = rec.spectra.x[w]
-    for name, c in (("coh_L", "tab:purple"), ("coh_R", "tab:red"), ("coh_G", "tab:green"),
-                    ("coh_B", "tab:blue")):
-        ax_spec.plot(grid, x[CHANNELS.index(name)], color=c, lw=1.4 if name == "coh_L" else 0.7,
-                     label=name.replace("coh_", "coherent "))
+    planes, grid = spectrum_view(inp, w)
+    x = inp.x[w]
+    ax_spec.plot(grid, x[CHANNELS.index("coh_max")], color="tab:purple", lw=0.8, ls="--",
+                 label="luma, largest over the frames")
+    for name in ("L", "R", "G", "B"):
+        ax_spec.plot(grid, planes[name], color=CHANNEL_COLOURS[name] if name != "L"
+                     else "tab:purple", lw=1.4 if name == "L" else 0.7,
+                     label=("luma" if name == "L" else name) + ", mean over the frames")
+    title = (f"stripes along {inp.axes[w]}, frames of {FRAME_LINES << inp.levels[w]} lines, "
+             f"across {inp.windows[w][0]:.0%}-{inp.windows[w][1]:.0%}")
     fit = ev.spec_fit
     if fit is not None:
         for ch, tones in fit.tones_cpr.items():
             for t in tones:
                 ax_spec.axvline(t, color=CHANNEL_COLOURS.get(ch, "k"), ls=":", lw=1)
-        ax_spec.set_title(f"dotted: tones of {fit.spec} at its best scale "
-                          f"(template score {round(fit.score, 3)})", loc="left", fontsize=9)
+        title += (f"; dotted: tones of {fit.spec} at its best scale (template score "
+                  f"{round(fit.score, 3)})")
+    ax_spec.set_title(title, loc="left", fontsize=9)
     ax_spec.set_xscale("log")
     ax_spec.set_xlabel("cycles per analysed row (log scale: the unknown row rate is a shift)")
     ax_spec.set_ylabel("ln(power / noise floor)")
-    ax_spec.legend(fontsize=8, ncol=4)
+    ax_spec.legend(fontsize=7, ncol=3)
 
-    axis, (c0, c1, _, _) = rec.spectra.axes[w], rec.spectra.windows[w]
-    luma = CHANNELS.index("coh_L")
-    for q, (r0, r1) in enumerate(QUARTERS):
-        k = next((i for i, (a, win) in enumerate(zip(rec.spectra.axes, rec.spectra.windows,
-                                                     strict=True))
-                  if a == axis and win == (c0, c1, r0, r1)), None)
-        if k is not None:
-            ax_rows.plot(grid, rec.spectra.x[k][luma] + 4.0 * (len(QUARTERS) - 1 - q),
-                         color=f"C{q}", lw=0.9, label=f"lines {r0:.0%}-{r1:.0%}")
-    ax_rows.set_xscale("log")
-    ax_rows.set_xlabel("cycles per analysed row")
-    ax_rows.set_ylabel("ln(power / floor), offset by quarter")
-    ax_rows.legend(fontsize=7, ncol=4, loc="upper left")
-    ax_rows.set_title(f"{axis}, column range {c0:.0%}-{c1:.0%}: the coherent luma spectrum of "
-                      f"each quarter of the lines", loc="left", fontsize=9)
+    turns = np.stack([x[CHANNELS.index(f"turn_{d}")] for d in TURN_OFFSETS])
+    lim = max(float(np.abs(turns).max()), 0.5)
+    edges = np.concatenate([grid[:1] / 2 ** (1 / 48), np.sqrt(grid[1:] * grid[:-1]),
+                            grid[-1:] * 2 ** (1 / 48)])
+    im = ax_turn.pcolormesh(edges, np.arange(len(TURN_OFFSETS) + 1) - 0.5, turns,
+                            cmap="coolwarm", vmin=-lim, vmax=lim, shading="flat")
+    fig.colorbar(im, ax=ax_turn, label="ln co-occurrence")
+    ax_turn.set_xscale("log")
+    ax_turn.set_yticks(range(len(TURN_OFFSETS)),
+                       [f"x{2 ** (d / 24):.3f}" for d in TURN_OFFSETS], fontsize=7)
+    ax_turn.set_xlabel("cycles per analysed row of the lower frequency")
+    ax_turn.set_ylabel("ratio of the higher")
     return fig

@@ -17,6 +17,7 @@ __all__ = [
     "DEFAULT_PHOTO_DIR",
     "PHOTO_NAMES",
     "ALL_TEXTURE_KINDS",
+    "HARD_TEXTURE_KINDS",
     "TEXTURE_KINDS",
     "corpus_manifest",
     "corpus_photo",
@@ -39,6 +40,9 @@ TEXTURE_KINDS = ("blinds", "bricks", "fabric")
 #: Every kind `texture_scene` draws; ``"screen"`` (a display's fine scan lines) is left out of
 #: `TEXTURE_KINDS` so that datasets drawn from that tuple stay as they were.
 ALL_TEXTURE_KINDS = (*TEXTURE_KINDS, "screen")
+#: Kinds drawn only where asked for by name (training's hard look-alikes): a building's windows
+#: in perspective, a grid whose pitch changes across the frame.
+HARD_TEXTURE_KINDS = ("facade",)
 # Real-photo corpus written by scripts/fetch_photos.py (manifest.jsonl + images/).
 DEFAULT_PHOTO_DIR = Path("out/photos")
 PHOTOS_PREFIX = "photos:"
@@ -391,9 +395,11 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
 
     Parameters
     ----------
-    kind : {"blinds", "bricks", "fabric", "screen"}
+    kind : {"blinds", "bricks", "fabric", "screen", "facade"}
         Window blinds (soft square wave), brick courses with staggered joints, a woven
-        fabric (two crossed gratings with fine thread noise), or a display's scan lines.
+        fabric (two crossed gratings with fine thread noise), a display's scan lines, or a
+        facade's windows in perspective (a grid whose pitch changes by up to 2x across the
+        frame, each window its own shade: successive pitches look like tones taking turns).
     n_rows, n_cols : int
         Sensor size in pixels.
     rng : numpy.random.Generator
@@ -411,10 +417,12 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
     params : dict
         JSON-ready parameters (kind, period_px, angle_deg).
     """
-    if kind not in ALL_TEXTURE_KINDS:
-        raise ConfigError(f"unknown texture {kind!r}; known: {', '.join(ALL_TEXTURE_KINDS)}")
+    known = (*ALL_TEXTURE_KINDS, *HARD_TEXTURE_KINDS)
+    if kind not in known:
+        raise ConfigError(f"unknown texture {kind!r}; known: {', '.join(known)}")
     if period_px is None:
-        lo, hi = {"fabric": (4.0, 30.0), "screen": (2.0, 6.0)}.get(kind, (8.0, 120.0))
+        lo, hi = {"fabric": (4.0, 30.0), "screen": (2.0, 6.0),
+                  "facade": (4.0, 60.0)}.get(kind, (8.0, 120.0))
         period_px = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
     if angle_deg is None:
         angle_deg = float(rng.uniform(-10, 10) if rng.random() < 0.5 else rng.uniform(0, 180))
@@ -439,6 +447,17 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
         mortar = 0.08
         mask = ((frac_u > mortar) & (frac_v > mortar / brick_len)).astype(np.float32)
         col_b = np.full(3, rng.uniform(0.5, 0.8), dtype=np.float32)  # light mortar
+    elif kind == "facade":  # pitch p (1 + g x / span) along each direction: perspective
+        span = float(max(n_rows, n_cols))
+        uu, vv = (_chirp(w * period_px, float(rng.uniform(-0.6, 0.6)), span, period_px)
+                  for w in (u, v))
+        uu = uu + np.float32(rng.uniform(0, 1))
+        fu, fv = uu - np.floor(uu), vv - np.floor(vv)
+        wu, wv = rng.uniform(0.5, 0.85), rng.uniform(0.5, 0.85)
+        window = ((fu > 1 - wu) & (fv > 1 - wv)).astype(np.float32)
+        shades = rng.uniform(0.0, 0.7, (61, 67)).astype(np.float32)  # each window its own
+        cell = shades[np.floor(uu).astype(np.int64) % 61, np.floor(vv).astype(np.int64) % 67]
+        mask = 1.0 - window * (1.0 - cell)
     elif kind == "screen":  # scan lines: bright rows, thin dark gaps, a slow image on top
         frac = u - np.floor(u)
         mask = np.clip((frac - 0.15) * period_px * 2, 0.0, 1.0) * (
@@ -453,6 +472,14 @@ def texture_scene(kind: str, n_rows: int, n_cols: int, *, rng: np.random.Generat
     shade = _smooth_field(n_rows, n_cols, rng=rng, amplitude=0.25)
     out = np.clip(img * shade[:, :, None], 0.0, 1.0).astype(np.float32)
     return out, {"kind": kind, "period_px": round(period_px, 4), "angle_deg": round(angle_deg, 4)}
+
+
+def _chirp(x_px: np.ndarray, g: float, span: float, period_px: float) -> np.ndarray:
+    """Phase in periods at position ``x_px`` of a grating whose local period is
+    ``period_px * (1 + g x / span)`` (a plane seen in perspective)."""
+    if abs(g) < 1e-6:
+        return x_px / period_px
+    return np.log(np.maximum(1.0 + g * x_px / span, 0.05)) * (span / (g * period_px))
 
 
 def _smooth_field(n_rows: int, n_cols: int, *, rng: np.random.Generator,

@@ -105,14 +105,14 @@ def bank_weights(folder: str = str(DEFAULT_BANK)) -> tuple[float, ...]:
 
 
 def _scene_desc(rng: np.random.Generator, weights: tuple[float, ...],
-                kind: str | None = None) -> dict:
+                kind: str | None = None, texture: str | None = None) -> dict:
     """A scene: a bank photo (crop, flip, white balance, contrast), a procedural scene or a
-    periodic texture."""
+    periodic texture (``texture``: that one, else any of `synth.scene.ALL_TEXTURE_KINDS`)."""
     from synth.scene import ALL_TEXTURE_KINDS
 
     d: dict = {"seed": int(rng.integers(2**63))}
     if kind == "texture":
-        d.update(kind="texture", texture=str(rng.choice(ALL_TEXTURE_KINDS)))
+        d.update(kind="texture", texture=texture or str(rng.choice(ALL_TEXTURE_KINDS)))
     elif weights and rng.random() < 0.88:
         d.update(kind="bank", bank_index=int(rng.choice(len(weights), p=np.asarray(weights))),
                  crop=[float(rng.uniform(0.3, 1.0)), float(rng.random()), float(rng.random())],
@@ -175,11 +175,14 @@ def _negative_lights(rng: np.random.Generator, kind: str) -> list[dict]:
     return [{"kind": "steady"}]
 
 
-def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> dict:
+def sample_example(index: int, seed: int, weights: tuple[float, ...] = (),
+                   texture: str | None = None) -> dict:
     """Every parameter of example ``index`` of the dataset drawn with ``seed`` (no rendering).
 
     ``weights``: draw probability of each scene-bank photo (`bank_weights`); empty for
-    procedural scenes only.
+    procedural scenes only. ``texture``: a supplement whose every scene is that texture
+    (`synth.scene.texture_scene`), barcodes and look-alikes alike (its look-alikes are steady
+    or PWM light on it): the hard look-alikes that a fresh evaluation found, as a kind.
     """
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(index)]))
     label = int(rng.random() < 0.5)
@@ -216,7 +219,8 @@ def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> di
         if rng.random() < 0.15:
             lights += _negative_lights(rng, str(rng.choice(["pwm", "mains", "pwm-tones"])))
     else:
-        kind = NEG_KINDS[int(rng.choice(len(NEG_KINDS), p=np.asarray(NEG_PROBS)))]
+        kind = "texture" if texture else \
+            NEG_KINDS[int(rng.choice(len(NEG_KINDS), p=np.asarray(NEG_PROBS)))]
         p["kind"], p["preset"] = kind, None
         if kind == "texture":
             lights = [_pwm(rng)] if rng.random() < 0.4 else [{"kind": "steady"}]
@@ -235,8 +239,8 @@ def sample_example(index: int, seed: int, weights: tuple[float, ...] = ()) -> di
                                        float(rng.uniform(0.05, 0.95))],
                          "aspect": _log_uniform(rng, 0.4, 2.5),
                          "softness": float(rng.uniform(0.02, 0.25))}
-    textured = p["kind"] == "texture" or (label and rng.random() < 0.1)
-    p["scene"] = _scene_desc(rng, weights, "texture" if textured else None)
+    textured = p["kind"] == "texture" or (label and rng.random() < 0.1) or bool(texture)
+    p["scene"] = _scene_desc(rng, weights, "texture" if textured else None, texture)
     p["tone"] = None
     if rng.random() < 0.4:
         p["tone"] = {"gamma": _log_uniform(rng, 0.6, 1.6), "s_curve": float(rng.uniform(0, 0.6))}
@@ -629,11 +633,11 @@ def _record(p: dict, meas: dict) -> dict:
 
 
 def example_profiles(index: int, seed: int, bank_dir: str = str(DEFAULT_BANK), *,
-                     fast: bool = True) -> tuple[dict, dict]:
+                     fast: bool = True, texture: str | None = None) -> tuple[dict, dict]:
     """Block profiles (axis -> (3, 32, n_lines)) and record of one example, by the profile
-    renderer (``fast``) or the full one."""
+    renderer (``fast``) or the full one (``texture``: see `sample_example`)."""
     bank = scene_bank(bank_dir)
-    p = sample_example(index, seed, bank_weights(bank_dir))
+    p = sample_example(index, seed, bank_weights(bank_dir), texture)
     if fast:
         profiles, meas = render_profiles(p, bank)
     else:

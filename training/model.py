@@ -20,7 +20,7 @@ from lishield_guard.detector.tfinput import CHANNELS, INPUT_VERSION
 
 KERNEL = 5
 DILATIONS = (1, 2, 4, 8)
-WIDTHS = (24, 24, 32, 32)
+WIDTHS = (32, 32, 48, 48)
 HIDDEN = 32
 
 

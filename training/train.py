@@ -69,15 +69,16 @@ def dequantise(q: np.ndarray, meta: np.ndarray) -> np.ndarray:
     return out
 
 
-def example_arrays(index: int, seed: int, bank: str, fast: bool = True) -> tuple:
+def example_arrays(index: int, seed: int, bank: str, fast: bool = True,
+                   texture: str | None = None) -> tuple:
     """One example as stored: (x uint8 (MAX_LEVELS, N_STORED, N_FREQ), meta (MAX_LEVELS, 2),
-    mask (MAX_LEVELS,), record)."""
+    mask (MAX_LEVELS,), record); ``texture``: of that supplement (`data.sample_example`)."""
     from lishield_guard.detector.spectra import USABLE_TILES
     from lishield_guard.detector.tfinput import profiles_input
     from lishield_guard.detector.usable import MIN_USABLE_BLOCKS, usable_blocks
     from training.data import example_profiles
 
-    profiles, rec = example_profiles(index, seed, bank, fast=fast)
+    profiles, rec = example_profiles(index, seed, bank, fast=fast, texture=texture)
     (axis, prof), = ((a, p) for a, p in profiles.items() if a == (0 if not rec["rotate"] else 1))
     keep, _ = usable_blocks(prof.mean(axis=0), full_scale=255.0, tiles=USABLE_TILES)
     rec["usable"] = bool(keep.sum() >= MIN_USABLE_BLOCKS)
@@ -101,25 +102,27 @@ def _init_worker() -> None:
 
 
 def _chunk(args: tuple) -> tuple:
-    start, stop, seed, bank = args
-    got = [example_arrays(i, seed, bank) for i in range(start, stop)]
+    start, stop, seed, bank, texture = args
+    got = [example_arrays(i, seed, bank, texture=texture) for i in range(start, stop)]
     return (np.stack([g[0] for g in got]), np.stack([g[1] for g in got]),
             np.stack([g[2] for g in got]), [g[3] for g in got])
 
 
-def _shard_path(cache: Path, seed: int, start: int) -> Path:
-    return cache / f"s{seed}_{start:08d}.npz"
+def _shard_path(cache: Path, seed: int, start: int, texture: str | None = None) -> Path:
+    return cache / (f"s{seed}_{start:08d}.npz" if texture is None else
+                    f"s{seed}_{texture}_{start:08d}.npz")
 
 
 def generate(n: int, seed: int, *, jobs: int, cache: Path, bank: str,
-             budget_s: float = float("inf")) -> tuple:
-    """Examples 0..n-1 of ``seed`` as (x, meta, mask, records), shards cached in ``cache``.
+             budget_s: float = float("inf"), texture: str | None = None) -> tuple:
+    """Examples 0..n-1 of ``seed`` as (x, meta, mask, records), shards cached in ``cache``
+    (``texture``: of that supplement, `data.sample_example`).
 
     With ``budget_s`` generation stops after that many seconds and the complete prefix done
     by then is returned (its length goes into the card, so ``--n k`` reproduces it)."""
     cache.mkdir(parents=True, exist_ok=True)
     starts = list(range(0, n, SHARD))
-    todo = [s for s in starts if not _shard_path(cache, seed, s).exists()]
+    todo = [s for s in starts if not _shard_path(cache, seed, s, texture).exists()]
     t0 = time.time()
     if todo:
         step = 50
@@ -128,7 +131,7 @@ def generate(n: int, seed: int, *, jobs: int, cache: Path, bank: str,
                 stop = min(s + SHARD, n)
                 if stop - s < SHARD and stop != n:
                     continue
-                futures = [pool.submit(_chunk, (a, min(a + step, stop), seed, bank))
+                futures = [pool.submit(_chunk, (a, min(a + step, stop), seed, bank, texture))
                            for a in range(s, stop, step)]
                 try:
                     parts = [f.result(timeout=max(budget_s - (time.time() - t0), 0.01)
@@ -139,17 +142,17 @@ def generate(n: int, seed: int, *, jobs: int, cache: Path, bank: str,
                     break
                 arrays = [np.concatenate([p[k] for p in parts]) for k in range(3)]
                 recs = [r for p in parts for r in p[3]]
-                tmp = _shard_path(cache, seed, s).with_suffix(".tmp.npz")
+                tmp = _shard_path(cache, seed, s, texture).with_suffix(".tmp.npz")
                 np.savez(tmp, x=arrays[0], meta=arrays[1], mask=arrays[2],
                          records=json.dumps(recs))
-                tmp.replace(_shard_path(cache, seed, s))
+                tmp.replace(_shard_path(cache, seed, s, texture))
                 done = s + len(recs)
                 rate = (done - todo[0]) / max(time.time() - t0, 1e-9)
                 print(f"  {done}/{n} examples, {rate:.1f}/s, {time.time() - t0:.0f} s",
                       file=sys.stderr, flush=True)
     xs, metas, masks, recs = [], [], [], []
     for s in starts:
-        path = _shard_path(cache, seed, s)
+        path = _shard_path(cache, seed, s, texture)
         if not path.exists():
             break
         with np.load(path) as z:
@@ -287,15 +290,27 @@ def main(argv: list[str] | None = None) -> int:
                     help="stop generating after this many seconds (keeps a complete prefix)")
     ap.add_argument("--fit-budget-s", type=float, default=float("inf"),
                     help="stop training after this many seconds")
+    ap.add_argument("--supplement", default="facade",
+                    help="texture of the hard look-alike supplement (data.sample_example: "
+                    "every scene that texture, barcodes and look-alikes alike); '' for none")
+    ap.add_argument("--supplement-n", type=int, default=16_000,
+                    help="examples of the supplement (default 16000; its last tenth held out)")
+    ap.add_argument("--supplement-seed", type=int, default=1040)
     ap.add_argument("--generate-only", action="store_true", help="generate, do not train")
     a = ap.parse_args(argv)
     t0 = time.time()
     x, meta, mask, recs = generate(a.n, a.seed, jobs=a.jobs, cache=Path(a.cache), bank=a.bank,
                                    budget_s=a.gen_budget_s)
-    t_gen = time.time() - t0
     n = len(recs)
-    print(f"{n} examples ({sum(r['label'] for r in recs)} positives) in {t_gen:.0f} s",
-          file=sys.stderr, flush=True)
+    sup = (np.zeros((0, MAX_LEVELS, N_STORED, N_FREQ), np.uint8),
+           np.zeros((0, MAX_LEVELS, 2), np.float32), np.zeros((0, MAX_LEVELS), bool), [])
+    if a.supplement and a.supplement_n:
+        sup = generate(a.supplement_n, a.supplement_seed, jobs=a.jobs, cache=Path(a.cache),
+                       bank=a.bank, texture=a.supplement)
+    t_gen = time.time() - t0
+    n_sup = len(sup[3])
+    print(f"{n} examples ({sum(r['label'] for r in recs)} positives) and {n_sup} of the "
+          f"{a.supplement or 'no'} supplement in {t_gen:.0f} s", file=sys.stderr, flush=True)
     if a.generate_only or n == 0:
         return 0
     import torch
@@ -303,11 +318,19 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(max(1, a.jobs))
     device = ("cuda" if torch.cuda.is_available() else "cpu") if a.device == "auto" \
         else a.device
+    n_val = min(a.val, n // 5)
+    sup_val = n_sup // 10
+    # the main set's last n_val and the supplement's last tenth are held out
+    x, meta, mask = (np.concatenate([m, s]) for m, s in zip((x, meta, mask), sup[:3],
+                                                               strict=True))
+    recs = recs + sup[3]
     y = np.array([r["label"] for r in recs], np.int64)
     ok = _trainable(recs)
-    n_val = min(a.val, n // 5)
-    val_idx = np.flatnonzero(ok[n - n_val:]) + (n - n_val)
-    train_all = np.flatnonzero(ok[:n - n_val])
+    held = np.zeros(len(recs), bool)
+    held[n - n_val:n] = True
+    held[len(recs) - sup_val:] = True
+    val_idx = np.flatnonzero(ok & held)
+    train_all = np.flatnonzero(ok & ~held)
     data = (x, meta, mask, y)
     size_curve = []
     for size in [int(v) for v in a.sizes.split(",") if v.strip()]:
@@ -331,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
     from training.data import MONO_PRESETS, RGB_PRESETS
 
     card = {"training_commit": _commit(), "data_seed": a.seed,
+            "supplement": {"texture": a.supplement, "n": n_sup, "seed": a.supplement_seed},
             "specs": list(MONO_PRESETS + RGB_PRESETS), "train_seed": a.train_seed,
             "n_examples": n, "n_train": int(len(train_all)), "n_val": int(len(val_idx)),
             "epochs": a.epochs, "min_train_contrast": MIN_TRAIN_CONTRAST,

@@ -74,6 +74,11 @@ def _describe(v, label: str, *, explain: bool) -> str:
     total = sum(t.values())
     lines.append("  timings: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in t.items())
                  + f" (total {total:.1f} ms)")
+    first = ev.get("first_look") if explain else None
+    if isinstance(first, dict) and not first.get("cleared"):
+        lines.append(f"  first look: peak {first['peak_ln']} ln at {first['where']}, "
+                     + ("off (no calibrated threshold): went on" if first["threshold_ln"] is None
+                        else f">= {first['threshold_ln']:.4f}: went on to the full decision"))
     if explain and isinstance(ev.get("video"), dict):
         lines += _explain_frames(ev["video"])
     elif explain and isinstance(ev.get("physics"), dict):
@@ -183,8 +188,8 @@ def plot_verdict(source: Any, verdict, config: AppConfig, out_png: Path) -> Path
 
 
 PLOT_HELP = ("Write the figure of what decided the verdict: the network's logit for every "
-             "window, the deciding window's spectrum with the tones of the spec that explains "
-             "it best, and its column range's spectrum in each quarter of the rows (the "
+             "axis and pyramid level, the deciding instance's spectrum with the tones of the "
+             "spec that explains it best, and which frequencies take turns over its frames (the "
              "cascade profile: the fitted rows "
              "with the template and the look-alike; a clip: the deciding frame above the "
              "per-frame scores). With several images: a folder, one IMG-stem.png each (the "

@@ -2,10 +2,11 @@
 
 `measure` turns decoded pixels into a `DecisionRecord` with fixed work for a given image size:
 block profiles of both axes (`spectra.block_profiles_rgb`, one pass over the pixels), the
-usable-block check, the window spectra and the network's window logits. `decide_record` is the
-decision rule, written once: detection applies it to one record, calibration to a table of
-cached logits (`rule` takes arrays). Nothing here searches: the cost is bounded by the image
-size whatever the image shows.
+usable-block check, the time-frequency input (`tfinput`, one instance per axis and pyramid
+level) and the network's instance logits. `rule_at` is the decision rule, written once:
+detection applies it to one record, calibration to a table of cached logits (it takes
+arrays). Nothing here searches: the cost is bounded by the image size whatever the image
+shows.
 """
 
 from __future__ import annotations
@@ -16,15 +17,10 @@ from functools import cache
 import numpy as np
 
 from lishield_guard.config import DetectorConfig
-from lishield_guard.detector.learned import DecisionModel, load_model, score_windows, shipped_model
 from lishield_guard.detector import tfinput
-from lishield_guard.detector.spectra import (
-    AXIS_NAMES,
-    USABLE_TILES,
-    SpectralInput,
-    analysable,
-    axes_input,
-)
+from lishield_guard.detector.learned import DecisionModel, load_model, score_windows, shipped_model
+from lishield_guard.detector.spectra import AXIS_NAMES, USABLE_TILES, analysable
+from lishield_guard.detector.tfinput import TimeFreqInput
 from lishield_guard.detector.usable import MIN_USABLE_BLOCKS
 
 __all__ = ["DecisionRecord", "decision_model", "measure", "rule", "rule_at", "spectrum_view",
@@ -36,9 +32,10 @@ class DecisionRecord:
 
     Attributes
     ----------
-    logits : ndarray of shape (n_windows,), float32
-        The network's logit of every window (empty when nothing could be analysed).
-    spectra : SpectralInput
+    logits : ndarray of shape (n_instances,), float32
+        The network's logit of every instance, one per analysed (axis, level) (empty when
+        nothing could be analysed).
+    spectra : TimeFreqInput
         The network's input (kept for the explanation and the figure).
     undetermined : str or None
         Why the image could not be analysed at all (None when it was).
@@ -47,18 +44,18 @@ class DecisionRecord:
     """
 
     logits: np.ndarray
-    spectra: SpectralInput
+    spectra: TimeFreqInput
     undetermined: str | None = None
     usable_notes: tuple[str, ...] = field(default=())
 
     @property
     def best(self) -> int:
-        """Index of the deciding window (the largest logit), -1 when there is none."""
+        """Index of the deciding instance (the largest logit), -1 when there is none."""
         return int(np.argmax(self.logits)) if len(self.logits) else -1
 
     @property
     def logit(self) -> float:
-        """The image's decision logit: the largest window logit (-inf when none)."""
+        """The image's decision logit: the largest instance logit (-inf when none)."""
         return float(self.logits[self.best]) if len(self.logits) else float("-inf")
 
 
@@ -81,39 +78,31 @@ def decision_model(det: DetectorConfig) -> DecisionModel:
 
 @cache
 def _load(path: str) -> DecisionModel:
+    # Keyed on the path: weights rewritten in place during a process are not reloaded (the
+    # evidence cache and `config.load_config`'s digest check key on the file's content).
     return load_model(path)
 
 
-def window_label(spectra, index: int) -> str:
-    """Where window or instance ``index`` lies, in words (``"stripes along rows; columns
-    25%-75%, rows 0%-50%"``, or for the time-frequency input ``"stripes along rows; columns
-    25%-75%, frames of 256 rows"``)."""
+def window_label(spectra: TimeFreqInput, index: int) -> str:
+    """Where instance ``index`` lies, in words (``"stripes along rows; columns 25%-75%, frames
+    of 256 rows"``)."""
     across = "columns" if spectra.axes[index] == "rows" else "rows"
     along = "rows" if spectra.axes[index] == "rows" else "columns"
-    if isinstance(spectra, tfinput.TimeFreqInput):
-        c0, c1 = spectra.windows[index]
-        frame = tfinput.FRAME_LINES << spectra.levels[index]
-        return (f"stripes along {spectra.axes[index]}; {across} {c0:.0%}-{c1:.0%}, "
-                f"frames of {frame} {along}")
-    c0, c1, r0, r1 = spectra.windows[index]
+    c0, c1 = spectra.windows[index]
+    frame = tfinput.FRAME_LINES << spectra.levels[index]
     return (f"stripes along {spectra.axes[index]}; {across} {c0:.0%}-{c1:.0%}, "
-            f"{along} {r0:.0%}-{r1:.0%}")
+            f"frames of {frame} {along}")
 
 
-def spectrum_view(spectra, index: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """The whitened coherent log power of window or instance ``index`` per colour plane
-    (``"R"``, ``"G"``, ``"B"`` and ``"L"``, their mean) and its frequency grid in cycles per
-    analysed line: what the explanation (`explain.match_specs`) reads, whichever input the
-    model has. A time-frequency instance gives its power averaged over the frames."""
-    x = spectra.x[index]
-    if isinstance(spectra, tfinput.TimeFreqInput):
-        ch = tfinput.CHANNELS
-        planes = {"R": x[ch.index("coh_R")], "G": x[ch.index("coh_G")],
-                  "B": x[ch.index("coh_B")], "L": x[ch.index("coh_mean")]}
-        return planes, tfinput.freq_grid_cpr() / (1 << spectra.levels[index])
-    from lishield_guard.detector.spectra import CHANNELS, freq_grid_cpr
-
-    return ({c: x[CHANNELS.index(f"coh_{c}")] for c in "RGBL"}, freq_grid_cpr())
+def spectrum_view(spectra: TimeFreqInput, index: int
+                  ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The whitened coherent log power of instance ``index`` per colour plane (``"R"``,
+    ``"G"``, ``"B"`` and ``"L"``, their mean), averaged over its frames, and its frequency grid
+    in cycles per analysed line: what the explanation (`explain.match_specs`) reads."""
+    x, ch = spectra.x[index], tfinput.CHANNELS
+    planes = {"R": x[ch.index("coh_R")], "G": x[ch.index("coh_G")],
+              "B": x[ch.index("coh_B")], "L": x[ch.index("coh_mean")]}
+    return planes, tfinput.freq_grid_cpr() / (1 << spectra.levels[index])
 
 
 def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | None = None
@@ -137,21 +126,17 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
     """
     axes = (0, 1) if det.profiles.orientations == "both" else (0,)
     model = model or decision_model(det)
-    timefreq = model.card["input_version"] == tfinput.INPUT_VERSION
-    a = analysable(pixels, axes, tiles=USABLE_TILES if timefreq else 1)
+    a = analysable(pixels, axes, tiles=USABLE_TILES)
     if not a["profiles"]:
-        return DecisionRecord(np.zeros(0, np.float32), axes_input({}, full_scale=1.0),
+        return DecisionRecord(np.zeros(0, np.float32),
+                              tfinput.profiles_input({}, full_scale=1.0, skipped=a["skipped"]),
                               "image too small: " + "; ".join(a["skipped"]))
     notes = tuple(f"{AXIS_NAMES[ax]}: " + ", ".join(why) for ax, why in a["notes"].items()
                   if why)
     usable = {ax: p for ax, p in a["profiles"].items()
               if int(a["keep"][ax].sum()) >= MIN_USABLE_BLOCKS}
-    if timefreq:
-        spectra = tfinput.profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"],
-                                         skipped=a["skipped"])
-    else:
-        spectra = axes_input(usable, full_scale=a["full_scale"], skipped=a["skipped"],
-                             keep=a["keep"])
+    spectra = tfinput.profiles_input(usable, full_scale=a["full_scale"], keep=a["keep"],
+                                     skipped=a["skipped"])
     if not usable:
         lo, hi = float(np.min(pixels)), float(np.max(pixels))
         why = (f"no dynamic range: every pixel is {lo:g}" if lo == hi else

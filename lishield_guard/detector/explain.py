@@ -2,7 +2,7 @@
 
 The learned stage says *whether* a barcode is there; this stage says *which* configured spec
 explains the stripes best, at what scale, with which tones, reading only the whitened
-coherent spectra of the window that decided (`spectra.window_spectra`). Each spec's tone
+coherent spectra of the instance that decided (`decision.spectrum_view`). Each spec's tone
 template is slid along the log-frequency axis (every scale the grid holds) and scored by the
 mean whitened log power at its tones. A white (mono) spec's tones must show in every colour
 plane (its score takes the weakest plane), an RGB spec's tones in their own plane well above
@@ -17,12 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lishield_guard.detector.spectra import BINS_PER_OCTAVE, CHANNELS, freq_grid_cpr
+from lishield_guard.detector.tfinput import BINS_PER_OCTAVE
 from lishield_guard.spec import BarcodeSpec
 
 __all__ = ["SpecFit", "match_specs", "peak_tones"]
 
-_COH = {c: CHANNELS.index(f"coh_{c}") for c in "RGBL"}
 TONE_SLACK_BINS = 1  # a tone may sit one bin (1/24 octave, 3 %) off its template position
 RGB_MARGIN = 2.0  # an RGB spec's tones must stand this far (ln units) above their level in the
 #                   other colour planes, or its score pays the difference
@@ -84,24 +83,15 @@ def _template(spec: BarcodeSpec) -> dict[str, np.ndarray]:
             for c, fs in spec.channels}
 
 
-def _view(window) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """(planes, grid_cpr) of a window: a `decision.spectrum_view` pair, or one window of the
-    whole-window input (`spectra.SpectralInput.x`)."""
-    if isinstance(window, tuple):
-        return window
-    return {c: window[i] for c, i in _COH.items()}, freq_grid_cpr()
-
-
 def match_specs(window, specs: list[BarcodeSpec],
                 scale_range_cpr_per_hz: tuple[float, float] | None = None) -> list[SpecFit]:
     """Best placement of every spec's tone template on one window, best spec first.
 
     Parameters
     ----------
-    window : (dict, ndarray) or ndarray of shape (len(CHANNELS), N_FREQ)
+    window : (dict, ndarray)
         Whitened coherent log power per colour plane (``"R"``, ``"G"``, ``"B"``, ``"L"``) and
-        its log-frequency grid in cycles per analysed row (`decision.spectrum_view`, any
-        input), or one window of `spectra.SpectralInput.x`.
+        its log-frequency grid in cycles per analysed row (`decision.spectrum_view`).
     specs : list of BarcodeSpec
         The configured specs.
     scale_range_cpr_per_hz : (float, float), optional
@@ -115,7 +105,7 @@ def match_specs(window, specs: list[BarcodeSpec],
     list of SpecFit
         Sorted by score, highest first (empty when no spec fits on the grid).
     """
-    raw, grid = _view(window)
+    raw, grid = window
     planes = {c: _slack_max(v) for c, v in raw.items()}
     n = len(grid)
     fits = []
@@ -160,7 +150,7 @@ def peak_tones(window, *, min_level: float = 3.0, max_tones: int = 8
     """Local maxima of the window's luma coherent spectrum above ``min_level`` (ln units of
     power over the floor; 3.0 is 20x), strongest first, as (cycles per row, level).
     ``window``: as for `match_specs`."""
-    planes, grid = _view(window)
+    planes, grid = window
     x = planes["L"]
     peaks = [(float(grid[i]), float(x[i])) for i in range(1, len(x) - 1)
              if x[i] >= min_level and x[i] >= x[i - 1] and x[i] > x[i + 1]]

@@ -1,19 +1,22 @@
-"""The learned decision stage: a small 1-D convolutional network scores every window's spectra.
+"""The learned decision stage: a small 1-D convolutional network scores every input instance.
 
-Inference is a pure numpy function of `spectra.SpectralInput.x` (no training framework at run
+Inference is a pure numpy function of `tfinput.TimeFreqInput.x` (no training framework at run
 time). The weights ship as package data (``lishield_guard/data/decision_model.npz``) with a
-card (``decision_model.json``: training commit, data seed, input version, metrics on a fresh
-set); loading refuses a card whose input version is not `spectra.INPUT_VERSION`.
+card (``decision_model.json``: training commit, data seed, input version, widths, learning
+curves, the weights' digest); loading refuses a card whose input version is not
+`tfinput.INPUT_VERSION`.
 
 Network (the same layers as ``training/model.py``, which trains it)::
 
-    per window: (channels, frequency) -> 4 x [conv1d k=7, dilation 1/2/4/8, ReLU]
-      -> [max over frequency, mean over frequency] -> dense + ReLU -> dense -> window logit
-    image logit = max over windows (multiple-instance: one lit window is enough)
+    per instance (one axis at one pyramid level): (channels, frequency)
+      -> 4 x [conv1d, kernel and dilations from the card, ReLU]
+      -> [max over frequency, mean over frequency] -> dense + ReLU -> dense -> instance logit
+    image logit = max over instances (multiple-instance: one level of one axis is enough)
 
 Convolution along log frequency with a maximum over frequency makes the score invariant to
-the unknown scale (row rate, resizing) up to the grid's ends; the receptive field (91 bins,
-3.8 octaves) spans every tone ratio of the paper's barcodes and their harmonics.
+the unknown scale (row rate, resizing) up to the grid's ends, and the pyramid's levels share
+the weights (a row rate twice as high is the next level). The receptive field (kernel 5,
+dilations 1-8: 61 bins, 2.5 octaves) spans every tone ratio of the paper's barcodes.
 """
 
 from __future__ import annotations
@@ -27,14 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from lishield_guard.data_files import file_digest
-from lishield_guard.detector import spectra, tfinput
+from lishield_guard.detector import tfinput
 from lishield_guard.errors import ConfigError
 
 __all__ = ["DecisionModel", "load_model", "score_windows", "shipped_model"]
 
-#: Input representations the inference knows: version -> (channels, frequency bins).
-INPUT_SHAPES = {spectra.INPUT_VERSION: (len(spectra.CHANNELS), spectra.N_FREQ),
-                tfinput.INPUT_VERSION: (len(tfinput.CHANNELS), tfinput.N_FREQ)}
+#: The input the inference reads: version -> (channels, frequency bins).
+INPUT_SHAPES = {tfinput.INPUT_VERSION: (len(tfinput.CHANNELS), tfinput.N_FREQ)}
 MODEL_FILE = "decision_model.npz"
 CARD_FILE = "decision_model.json"
 
@@ -91,19 +93,19 @@ def _conv_same(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, dilation: in
 
 
 def score_windows(x: np.ndarray, model: DecisionModel) -> np.ndarray:
-    """Logit of every window (higher: more like a barcode capture).
+    """Logit of every instance (higher: more like a barcode capture).
 
     Parameters
     ----------
-    x : ndarray of shape (n_windows, len(CHANNELS), N_FREQ)
-        `spectra.SpectralInput.x`.
+    x : ndarray of shape (n_instances, len(tfinput.CHANNELS), tfinput.N_FREQ)
+        `tfinput.TimeFreqInput.x`.
     model : DecisionModel
         Weights (`shipped_model` or `load_model`).
 
     Returns
     -------
-    ndarray of shape (n_windows,), float32
-        Unbounded logits, in the windows' order; the image's logit is their maximum.
+    ndarray of shape (n_instances,), float32
+        Unbounded logits, in the instances' order; the image's logit is their maximum.
 
     Raises
     ------
@@ -133,7 +135,7 @@ def load_model(weights: str | Path, card: str | Path | None = None) -> DecisionM
     ------
     ConfigError
         When a file is missing or unreadable, the card's ``input_version`` is not the
-        code's `spectra.INPUT_VERSION` (weights trained on another representation), or the
+        code's `tfinput.INPUT_VERSION` (weights trained on another representation), or the
         card's ``weights_digest`` (when it has one) is not the weights file's digest.
     """
     weights = Path(weights)

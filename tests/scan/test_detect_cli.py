@@ -247,5 +247,5 @@ def test_plot_help_describes_the_figure_drawn_now(run_cli):
     from lishield_guard.figure_learned import learned_caption
 
     words = _help_words(run_cli("detect", "--help").output)
-    assert "the network's logit for every window" in words
-    assert "quarter of the rows" in words and "quarter of the rows" in learned_caption(False)
+    assert "the network's logit for every axis and pyramid level" in words
+    assert "take turns" in words and "take turns" in learned_caption(False)
