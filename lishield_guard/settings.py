@@ -377,10 +377,12 @@ class LearnedConfig(_Group):
         was not calibrated with).
     """
 
-    threshold_logit: float = 4.491605468030307  # calibrate, 2026-11-26: see default.toml
+    threshold_logit: float = 4.386050705801313  # calibrate, 2026-11-27: see default.toml
     model: str | None = None
     min_explain_score: float = 1.0
-    model_digest: str | None = None
+    # the shipped weights' (data/decision_model.json), as default.toml records it
+    model_digest: str | None = \
+        "sha256:44eb5832a051b1b3fbfc27cc431176c014f91dd0780cdfaa45aa7cc22a46f6b2"
     first_look_ln: float | None = None
 
     def __post_init__(self) -> None:

@@ -12,6 +12,11 @@ Images whose first look cannot clear them (``usable`` False: the decision might 
 unusable, and goes on to say so) do not bound it. With no flagged image there is nothing to
 bound it by, and the first look stays off (None): every image goes on.
 
+The first look only pays when it clears enough: an image that goes on pays it on top of the
+full decision (about a third of its cost at 1080p, `benchmarks/first_look.py`). Below
+`MIN_CLEARED_SHARE` of the clean calibration images cleared, it would cost more than it saves,
+and it stays off; the report still gives the threshold it would have had.
+
 Calibration measures each image's peak in the same pass that measures its logit
 (`calibration.evidence.learned_record`, one decode of luma, then colour), so the threshold
 costs no second pass; a retrained model gets its own first look from one ``calibrate`` run.
@@ -24,9 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MARGIN_LN", "FirstLookCalibration", "calibrate_first_look", "first_look_threshold"]
+__all__ = ["MARGIN_LN", "MIN_CLEARED_SHARE", "FirstLookCalibration", "calibrate_first_look",
+           "first_look_threshold"]
 
 MARGIN_LN = math.log(2.0)  # below the smallest flagged peak: a factor 2 in power, ln units
+MIN_CLEARED_SHARE = 0.5  # of the clean images; below it the first look costs more than it saves
 
 
 def first_look_threshold(flagged_peaks, *, margin_ln: float = MARGIN_LN) -> float | None:
@@ -79,6 +86,11 @@ class FirstLookCalibration:
         Of them, those the first look clears: 0 by construction.
     clean_on, n_clean, pos_on, n_pos : int
         Clean images and positives that go on to the full decision, of how many.
+    unpaid_ln : float or None
+        The threshold the flagged peaks allowed when it was left off because it clears
+        fewer than `MIN_CLEARED_SHARE` of the clean images (None otherwise).
+    unpaid_cleared : int
+        Clean images that threshold would have cleared (0 when it is on or absent).
     """
 
     first_look_ln: float | None
@@ -90,6 +102,8 @@ class FirstLookCalibration:
     n_clean: int
     pos_on: int
     n_pos: int
+    unpaid_ln: float | None = None
+    unpaid_cleared: int = 0
 
     @property
     def clean_on_share(self) -> float:
@@ -107,10 +121,17 @@ class FirstLookCalibration:
                 "min_flagged_peak": self.min_flagged_peak, "n_flagged": self.n_flagged,
                 "n_flagged_cleared": self.n_flagged_cleared,
                 "clean_on": [self.clean_on, self.n_clean],
-                "positives_on": [self.pos_on, self.n_pos]}
+                "positives_on": [self.pos_on, self.n_pos], "unpaid_ln": self.unpaid_ln}
 
     def line(self) -> str:
         """One line for the config header and the console."""
+        if self.first_look_ln is None and self.unpaid_ln is not None:
+            share = 100 * self.unpaid_cleared / self.n_clean
+            return (f"first look: off (at {self.unpaid_ln:.4f}, below the smallest flagged "
+                    f"peak {self.min_flagged_peak:.4f} by {self.margin_ln:.4f}, it would clear "
+                    f"only {share:.1f} % of the clean images, under the "
+                    f"{100 * MIN_CLEARED_SHARE:.0f} % where it pays): every image goes on to "
+                    "the full decision")
         if self.first_look_ln is None:
             return ("first look: off (no image flagged by the decision to bound it): every "
                     "image goes on to the full decision")
@@ -129,7 +150,8 @@ def _goes_on(peaks: np.ndarray, usable: np.ndarray, thr: float | None) -> np.nda
 
 
 def calibrate_first_look(peaks_clean, usable_clean, flagged_clean, peaks_pos, usable_pos,
-                         flagged_pos, *, margin_ln: float = MARGIN_LN) -> FirstLookCalibration:
+                         flagged_pos, *, margin_ln: float = MARGIN_LN,
+                         min_cleared_share: float = MIN_CLEARED_SHARE) -> FirstLookCalibration:
     """The first look's threshold (`first_look_threshold`) and its figures.
 
     Parameters
@@ -142,10 +164,15 @@ def calibrate_first_look(peaks_clean, usable_clean, flagged_clean, peaks_pos, us
         Whether the full decision flags each image (at the chosen ``threshold_logit``).
     margin_ln : float
         Margin below the smallest flagged peak, ln units.
+    min_cleared_share : float
+        Share of the clean images the threshold must clear for the first look to be on.
 
     Returns
     -------
     FirstLookCalibration
+        With the first look off (``first_look_ln`` None, ``unpaid_ln`` the threshold) when
+        it clears fewer than ``min_cleared_share`` of the clean images; the figures are then
+        those of no first look (every image goes on).
     """
     pc, pp = (np.asarray(p, float) for p in (peaks_clean, peaks_pos))
     uc, up = (np.asarray(u, bool) for u in (usable_clean, usable_pos))
@@ -154,8 +181,12 @@ def calibrate_first_look(peaks_clean, usable_clean, flagged_clean, peaks_pos, us
     bound = peaks[flagged & usable]
     thr = first_look_threshold(bound, margin_ln=margin_ln)
     on_c, on_p = _goes_on(pc, uc, thr), _goes_on(pp, up, thr)
+    unpaid, unpaid_cleared = None, 0
+    if thr is not None and len(pc) and 1.0 - on_c.mean() < min_cleared_share:
+        unpaid, unpaid_cleared, thr = thr, int((~on_c).sum()), None
+        on_c, on_p = _goes_on(pc, uc, None), _goes_on(pp, up, None)
     finite = bound[np.isfinite(bound)]
     return FirstLookCalibration(
         thr, float(margin_ln), float(finite.min()) if len(finite) else None,
         int(flagged.sum()), int((flagged & ~np.concatenate([on_c, on_p])).sum()),
-        int(on_c.sum()), len(pc), int(on_p.sum()), len(pp))
+        int(on_c.sum()), len(pc), int(on_p.sum()), len(pp), unpaid, unpaid_cleared)

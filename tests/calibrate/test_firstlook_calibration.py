@@ -43,6 +43,17 @@ def test_calibration_counts_what_goes_on_and_never_clears_a_flagged_image():
     assert "learned.first_look_ln=4.5000" in fc.line() and fc.to_dict()["clean_on"] == [2, 6]
 
 
+def test_a_first_look_that_clears_too_few_clean_images_stays_off():
+    """Peaks 1..10 of clean images, the smallest flagged at 3.5: a threshold of 3 would clear
+    2 of 10, under the half where the first look pays; it stays off and says why."""
+    fc = calibrate_first_look(list(map(float, range(1, 11))), [True] * 10, [False] * 10,
+                              [3.5], [True], [True], margin_ln=0.5)
+    assert fc.first_look_ln is None and fc.unpaid_ln == pytest.approx(3.0)
+    assert (fc.clean_on, fc.pos_on, fc.n_flagged_cleared) == (10, 1, 0)
+    assert "off (at 3.0000" in fc.line() and "20.0 %" in fc.line()
+    assert fc.to_dict()["unpaid_ln"] == pytest.approx(3.0)
+
+
 def test_nothing_flagged_leaves_it_off_and_everything_goes_on():
     fc = calibrate_first_look([1.0, 2.0], [True, True], [False, False], [3.0], [True], [False])
     assert fc.first_look_ln is None and fc.clean_on == 2 and fc.pos_on == 1
