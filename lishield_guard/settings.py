@@ -575,11 +575,11 @@ class VideoConfig:
     first_frames: int = 4
     max_frames: int = 16
     min_frames: int = 2
-    threshold_logit: float = 4.3228  # the shipped calibration (data/default.toml)
+    threshold_logit: float = 2.5397  # the shipped calibration (data/default.toml)
     clear_logit: float = 1.0
     frame_stride_s: float = 0.1
     max_rows: int = 540
-    model_digest: str | None = None
+    model_digest: str | None = LearnedConfig.model_digest  # the shipped weights'
 
     def __post_init__(self) -> None:
         _need(1 <= self.min_frames <= self.first_frames <= self.max_frames,
