@@ -92,7 +92,7 @@ def test_new_weights_do_not_reuse_the_old_weights_logits(two_runs):
 
 def test_photo_calibration_keeps_the_video_group(two_runs):
     """The written config keeps the base config's ``[video]`` thresholds (they were reset to
-    the defaults, 4.3228 and 1.0)."""
+    the dataclass defaults)."""
     video = _written(two_runs[0][0])["video"]
     assert (video["threshold_logit"], video["clear_logit"]) == (5.5, 1.5)
 
