@@ -29,12 +29,13 @@ pytestmark = pytest.mark.timeout(900)
 
 RENDER = {  # name -> synth arguments (explicit, so that no parameter mix decides)
     "white photo": ["capture", "--preset", "table1-seq3", "--scene", "skimage:coffee",
+                    "--switching-hz", "200", "--row-rate-hz", "20000",
                     "--exposure-s", "0.0002", "--seed", "3"],
     "rgb photo": ["capture", "--preset", "table2-rgb", "--exposure-s", "0.0002",
                   "--switching-hz", "200", "--seed", "2"],
     "white photo, seq1 (cascade)": ["capture", "--preset", "table1-seq1", "--scene",
                                     "skimage:coffee", "--seed", "11"],
-    "white clip": ["video", "--preset", "table1-seq1", "--f-b", "200", "--duration", "2",
+    "white clip": ["video", "--preset", "table1-seq3", "--f-b", "200", "--duration", "2",
                    "--ambient", "0", "--exposure-s", "0.0003", "--no-motion", "--seed", "1",
                    "--fps", "25"],
     "rgb clip": ["video", "--preset", "table2-rgb", "--f-b", "200", "--duration", "2",
