@@ -143,7 +143,8 @@ def test_detector_stages_import_only_earlier_stages_and_shared_modules():
 # `batch.types`) are imported by name on first use: the registries stay at the bottom.
 PACKAGE_LAYERS = (
     ("errors", "camera", "stats", "threads", "files", "data", "data_files", "spec", "profiles",
-     "batch.types", "batch.cache", "batch.pool", "calibration.split", "figure_text"),
+     "batch.types", "batch.cache", "batch.pool", "calibration.split", "calibration.firstlook",
+     "figure_text"),
     ("verdict",),  # the result, its typed evidence base and the one undetermined constructor
     ("settings",),  # every settings group (the profile names come from the registry)
     ("config",),  # the TOML file
