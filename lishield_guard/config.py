@@ -418,7 +418,8 @@ def dump_config(cfg: AppConfig, *, header: str = "") -> str:
     table = {
         "detector": det,
         "limits": dataclasses.asdict(cfg.limits),
-        "video": {k: v for k, v in dataclasses.asdict(cfg.video).items() if v is not None},
+        "video": {k: False if v is None else v  # model_digest None: written false (not
+                  for k, v in dataclasses.asdict(cfg.video).items()},  # recorded)
         "policies": [],
     }
     for p in cfg.policies:

@@ -15,6 +15,7 @@ from pathlib import Path
 import typer
 
 from lishield_guard.commands import ExitCode, fail
+from lishield_guard.errors import ConfigError
 from lishield_guard.profiles import CASCADE, DEFAULT, LEARNED, PAPER
 
 __all__ = ["calibrate_command", "register"]
@@ -183,6 +184,8 @@ def calibrate_command(
                               command=" ".join(["lishield-guard", *sys.argv[1:]]), **split)
     except calibration.CalibrationError as exc:
         raise fail(str(exc), ExitCode.ERROR if exc.failed else ExitCode.USAGE) from None
+    except ConfigError as exc:  # the configured weights cannot be read or do not match
+        raise fail(str(exc), ExitCode.USAGE) from None
     typer.echo(calibration.report.console_report(res.info, res.best, res.n_settings,
                                                  res.report_paths["summary"]))
     if not res.met:

@@ -32,9 +32,12 @@ def _digest(path: Path) -> str:
 pytestmark = pytest.mark.timeout(900)  # two calibrate runs on a loaded machine
 
 
-def _shift_last_bias(weights: Path, by: float) -> None:
+def _shift_last_bias(weights: Path, by: float, *, card: bool = True) -> None:
     """Retrain in place, cheaply: the same file with the network's output bias moved by
-    ``by`` (every logit moves by it)."""
+    ``by`` (every logit moves by it), and (``card``) its card's digest of the weights, as
+    training writes it."""
+    import json
+
     with np.load(weights) as z:
         arrays = {k: z[k] for k in z.files}
     last = max((k for k in arrays if k.startswith("dense") and k.endswith("_b")),
@@ -42,6 +45,11 @@ def _shift_last_bias(weights: Path, by: float) -> None:
     arrays[last] = arrays[last] + np.float32(by)
     with open(weights, "wb") as fh:
         np.savez(fh, **arrays)
+    if card:
+        path = weights.with_suffix(".json")
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        path.write_text(json.dumps({**meta, "weights_digest": _digest(weights)}),
+                        encoding="utf-8")
 
 
 def _written(path: Path) -> dict:
@@ -59,8 +67,11 @@ def two_runs(tiny_sets, tmp_path_factory):
     shutil.copy(DATA_DIR / MODEL_FILE, weights)
     shutil.copy(DATA_DIR / CARD_FILE, weights.with_suffix(".json"))
     base = root / "base.toml"
-    base.write_text(f'[detector.learned]\nmodel = "{weights}"\n\n'
-                    f"[video]\nthreshold_logit = 5.5\nclear_logit = 1.5\n", encoding="utf-8")
+    # model_digest = false: the base's thresholds are not claimed for any weights (the shipped
+    # config's are the shipped weights', which B no longer is)
+    base.write_text(f'[detector.learned]\nmodel = "{weights}"\nmodel_digest = false\n\n'
+                    f"[video]\nthreshold_logit = 5.5\nclear_logit = 1.5\nmodel_digest = false\n",
+                    encoding="utf-8")
     rep = root / "report"
     runs = []
     for name in ("a", "b"):
@@ -126,7 +137,7 @@ def test_a_card_that_does_not_describe_its_weights_is_refused(tmp_path):
     card["weights_digest"] = _digest(weights)
     weights.with_suffix(".json").write_text(json.dumps(card))
     assert load_model(weights).digest == card["weights_digest"]
-    _shift_last_bias(weights, 1.0)
+    _shift_last_bias(weights, 1.0, card=False)
     with pytest.raises(ConfigError, match="do not belong together"):
         load_model(weights)
 
@@ -146,3 +157,22 @@ def test_video_calibration_records_the_digest(tmp_path, monkeypatch):
     vcal.run_video_calibration([tmp_path], base=default_config(), out=out)
     video = load_config(out).video
     assert video.model_digest == _digest(DATA_DIR / MODEL_FILE)
+
+
+def test_calibrate_with_weights_its_card_does_not_describe_is_a_usage_error(tiny_sets,
+                                                                            tmp_path):
+    """A clear error and exit status 2, not a traceback."""
+    weights = tmp_path / "m.npz"
+    shutil.copy(DATA_DIR / MODEL_FILE, weights)
+    shutil.copy(DATA_DIR / CARD_FILE, weights.with_suffix(".json"))
+    _shift_last_bias(weights, 1.0, card=False)
+    base = tmp_path / "base.toml"
+    base.write_text(f'[detector.learned]\nmodel = "{weights}"\nmodel_digest = false\n\n'
+                    "[video]\nmodel_digest = false\n", encoding="utf-8")
+    res = subprocess.run(
+        [EXE, "calibrate", "--clean", str(tiny_sets["neg"]), "--positives",
+         str(tiny_sets["pos"]), "--out", str(tmp_path / "o.toml"), "--report",
+         str(tmp_path / "r"), "--jobs", "1", "--no-progress", "--config", str(base)],
+        capture_output=True, text=True, timeout=600)
+    assert res.returncode == 2, res.stderr
+    assert "do not belong together" in res.stderr and "Traceback" not in res.stderr
