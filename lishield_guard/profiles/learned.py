@@ -413,14 +413,7 @@ def first_look_evidence(look: FirstLook, config: AppConfig) -> FirstLookEvidence
 
 
 def _row_siblings(rec: DecisionRecord, window: int) -> list[int]:
-    """The windows of the same axis and column range as ``window`` (every row range), the
-    window itself first; for the time-frequency input, every level of the same axis."""
-    if len(rec.spectra.windows[window]) == 2:
-        axis = rec.spectra.axes[window]
-        return [window, *(i for i, a in enumerate(rec.spectra.axes) if a == axis
-                          and i != window)]
-    axis, (c0, c1, _, _) = rec.spectra.axes[window], rec.spectra.windows[window]
-    same = [i for i, (a, w) in enumerate(zip(rec.spectra.axes, rec.spectra.windows,
-                                             strict=True))
-            if a == axis and (w[0], w[1]) == (c0, c1) and i != window]
-    return [window, *same]
+    """The instances of the same axis as ``window`` (every pyramid level), ``window``
+    first: where the explanation looks for the spec's tones."""
+    axis = rec.spectra.axes[window]
+    return [window, *(i for i, a in enumerate(rec.spectra.axes) if a == axis and i != window)]
