@@ -319,8 +319,9 @@ def service(args) -> dict:
     if args.config:
         env["LISHIELD_CONFIG"] = args.config
     port = args.port
-    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "service.app:app", "--port",
-                             str(port), "--workers", str(args.workers)], env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "--factory",
+                             "service.app:create_app", "--port", str(port), "--workers",
+                             str(args.workers)], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         url = f"http://127.0.0.1:{port}/v1/screen"
