@@ -200,18 +200,24 @@ def _turns(c: np.ndarray) -> np.ndarray:
     return np.clip(out, *TURN_CLIP)
 
 
+def _inverse_floor(spec: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Weight of every block of block spectra ``spec`` (..., N_BLOCKS, n_frames, nf): the
+    inverse of its noise floor (the octave-smoothed power by which it differs from the mean
+    of the usable blocks, averaged over the frames), 0 for unusable blocks; (..., blocks, nf)."""
+    resid = spec - spec[..., keep, :, :].mean(axis=-3, keepdims=True)
+    floor = _floor((resid.real ** 2 + resid.imag ** 2).mean(axis=-2))
+    return (keep[:, None] / floor).astype(np.float32)
+
+
 def _coherent(spec: np.ndarray, keep: np.ndarray, sel: np.ndarray, *, incoherent: bool = True
-               ) -> tuple[np.ndarray, np.ndarray | None]:
+              ) -> tuple[np.ndarray, np.ndarray | None]:
     """Whitened coherent and incoherent power of one plane's block spectra.
 
     spec: (N_BLOCKS, n_frames, nf) complex; sel: (n_windows, N_BLOCKS) 0/1. Every block is
-    weighted by the inverse of its noise floor (the octave-smoothed power by which it differs
-    from the mean of the usable blocks, averaged over the frames), so a peak's height is its
-    significance. Returns (n_windows, n_frames, nf) coherent and incoherent power.
+    weighted by `_inverse_floor`, so a peak's height is its significance. Returns
+    (n_windows, n_frames, nf) coherent and incoherent (None unless ``incoherent``) power.
     """
-    resid = spec - spec[keep].mean(axis=0, keepdims=True)
-    floor = _floor((resid.real ** 2 + resid.imag ** 2).mean(axis=1))  # (blocks, nf)
-    inv = (keep[:, None] / floor).astype(np.float32)
+    inv = _inverse_floor(spec, keep)
     nb, nt, nf = spec.shape
     num = (sel.astype(np.complex64) @ (spec * inv[:, None, :]).reshape(nb, -1)).reshape(
         len(sel), nt, nf)
@@ -223,6 +229,15 @@ def _coherent(spec: np.ndarray, keep: np.ndarray, sel: np.ndarray, *, incoherent
     n_kept = np.maximum(sel @ keep.astype(np.float32), 1.0)
     inc = (sel @ pw.reshape(nb, -1)).reshape(len(sel), nt, nf) / n_kept[:, None, None]
     return coh, inc
+
+
+def _coherent_planes(spec: np.ndarray, keep: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """`_coherent`'s coherent power of every colour plane at once, for one column window:
+    spec (3, N_BLOCKS, n_frames, nf), row (N_BLOCKS,) 0/1 -> (3, n_frames, nf)."""
+    inv = _inverse_floor(spec, keep) * row[:, None]  # (3, blocks, nf)
+    num = np.einsum("pbtf,pbf->ptf", spec, inv.astype(np.complex64))
+    den = inv.sum(axis=1)[:, None, :] + _EPS
+    return (num.real ** 2 + num.imag ** 2) / den
 
 
 def level_instances(logp: np.ndarray, keep: np.ndarray, level: int,
@@ -260,8 +275,7 @@ def level_instances(logp: np.ndarray, keep: np.ndarray, level: int,
     coh = coh @ lm  # (windows, t, N_FREQ)
     w = int(np.argmax(coh.max(axis=(1, 2))))
     c = coh[w]
-    rgb = [_coherent(spec[i], use, sel[w:w + 1], incoherent=False)[0][0] @ lm
-           for i in range(3)]  # (t, N_FREQ)
+    rgb = _coherent_planes(spec, use, sel[w]) @ lm  # (3, t, N_FREQ)
     x = np.empty((len(CHANNELS), N_FREQ), np.float32)
     powers = [c.mean(axis=0), c.max(axis=0), (inc[w] @ lm).mean(axis=0),
               *(p.mean(axis=0) for p in rgb), *(p.max(axis=0) for p in rgb)]
