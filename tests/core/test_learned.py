@@ -221,3 +221,16 @@ def test_specs_the_network_never_saw_are_never_reported_clean(make_led_image):
     v = detect(img, _with_policies(custom, known))
     assert v.status == "clean"
     assert any("not in the decision model's training" in s for s in v.skipped)
+
+
+def test_a_lamp_in_a_dark_room_is_looked_at():
+    """Short exposure, a bright striped lamp on 16 of 720 rows, the rest black: every column
+    block is black on average (the code before issue 40 item 7 said undetermined: "32 black
+    column block(s)"), but the tiles that see the lamp are usable, so the frame is decided."""
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 3, (720, 960, 3)).astype(np.uint8)  # black, a little noise
+    r = np.arange(16)[:, None, None]
+    lamp = 150 + 60 * np.sign(np.sin(2 * np.pi * r / 5.0)) + rng.normal(0, 5, (16, 960, 3))
+    img[300:316] = np.clip(lamp, 0, 255).astype(np.uint8)
+    v = detect(img)
+    assert v.status in ("clean", "protected") and v.undetermined is None, v.undetermined
