@@ -143,4 +143,7 @@ def measure(pixels: np.ndarray, det: DetectorConfig, *, model: DecisionModel | N
                f"too few usable column blocks on every analysed axis ({'; '.join(notes)})")
         return DecisionRecord(np.zeros(0, np.float32), spectra, why, notes)
     logits = score_windows(spectra.x, model)
+    if not len(logits):  # an analysable axis always has a frame; never call nothing clean
+        return DecisionRecord(logits, spectra, "no frame of the analysable axes to score",
+                              notes)
     return DecisionRecord(logits, spectra, None, notes)

@@ -62,8 +62,9 @@ class FirstLook:
 
     def clears(self, first_look_ln: float | None) -> bool:
         """Whether the image is clean without the full decision (``first_look_ln`` None: the
-        first look is off and never clears)."""
-        return first_look_ln is not None and self.usable and self.peak < first_look_ln
+        first look is off and never clears; nothing measured, -inf: it never clears)."""
+        return (first_look_ln is not None and self.usable and bool(np.isfinite(self.peak))
+                and self.peak < first_look_ln)
 
     def to_dict(self, first_look_ln: float | None = None) -> dict:
         """JSON of the measurement and of its threshold (``cleared``: the image did not need

@@ -215,3 +215,11 @@ def test_the_record_measures_the_first_look_whatever_the_config(captures):
                                           _with_first_look(None), luma_first=True),
                            _with_first_look(None), Timer(), full=True).first_look
     assert look.peak == pytest.approx(c["first_look"])
+
+
+def test_a_first_look_that_measured_nothing_never_clears():
+    """Fail closed: a peak of -inf (nothing measured) is not 'below the threshold'."""
+    from lishield_guard.detector.firstlook import FirstLook
+
+    assert not FirstLook(float("-inf"), "nowhere", True).clears(5.0)
+    assert FirstLook(1.0, "rows", True).clears(5.0)
