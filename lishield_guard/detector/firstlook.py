@@ -97,9 +97,7 @@ def peak_of_profiles(profiles: dict[int, np.ndarray], *, full_scale: float,
             continue
         logp = np.log(np.maximum(prof, np.float32(full_scale / 512.0))).astype(np.float32)
         for level, x in enumerate(tfinput._pyramid(logp)):
-            fr = tfinput._frames(logp, level, x)
-            if fr is None:
-                break
+            fr = tfinput._frames(x)
             spec = rfft(fr[0], n=tfinput.NFFT, axis=-1, workers=1)  # (blocks, t, nf)
             coh, _ = tfinput._coherent(spec, use, sel, incoherent=False)
             # the bins the decision reads: from 2 cycles per frame up (the log grid's range)

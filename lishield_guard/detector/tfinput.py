@@ -169,20 +169,15 @@ def _pyramid(logp: np.ndarray) -> list[np.ndarray]:
     return out if logp.shape[-1] >= FRAME_LINES else []
 
 
-def _frames(logp: np.ndarray, level: int, x: np.ndarray | None = None) -> np.ndarray | None:
-    """Detrended, tapered frames of the level: (3, N_BLOCKS, n_frames, FRAME_LINES), or None
-    when the level holds no frame. ``x``: the level's profiles (`_pyramid`), when known."""
-    if x is None:
-        f = 1 << level
-        n = logp.shape[-1] // f
-        if n < FRAME_LINES:
-            return None
-        x = logp[..., :n * f].reshape(*logp.shape[:-1], n, f).mean(axis=-1) if f > 1 else logp
+def _frames(x: np.ndarray) -> np.ndarray:
+    """Detrended, tapered frames of one level's profiles (``(..., N_BLOCKS, n_lines)`` with
+    at least `FRAME_LINES` lines, `_pyramid`): ``(..., N_BLOCKS, n_frames, FRAME_LINES)``,
+    centred in the lines."""
     n = x.shape[-1]
     t = (n - FRAME_LINES) // HOP_LINES + 1
     start = (n - (FRAME_LINES + HOP_LINES * (t - 1))) // 2
     idx = start + HOP_LINES * np.arange(t)[:, None] + np.arange(FRAME_LINES)[None, :]
-    fr = x[..., idx]  # (3, blocks, t, FRAME_LINES)
+    fr = x[..., idx]  # (..., blocks, t, FRAME_LINES)
     fr = fr - fr.mean(axis=-1, keepdims=True)
     return fr * _hann()
 
@@ -240,32 +235,29 @@ def _coherent_planes(spec: np.ndarray, keep: np.ndarray, row: np.ndarray) -> np.
     return (num.real ** 2 + num.imag ** 2) / den
 
 
-def level_instances(logp: np.ndarray, keep: np.ndarray, level: int,
-                    decimated: np.ndarray | None = None) -> tuple[np.ndarray, int] | None:
+def level_instances(x_level: np.ndarray, keep: np.ndarray, level: int
+                    ) -> tuple[np.ndarray, int]:
     """The instance of one axis and level, and the column window it kept.
 
     Parameters
     ----------
-    logp : ndarray of shape (3, N_BLOCKS, n_lines), float32
-        ln(block line means) per colour plane.
+    x_level : ndarray of shape (3, N_BLOCKS, n_lines), float32
+        The level's ln(block line means) per colour plane (`_pyramid`: lines averaged
+        2^level at a time; at least `FRAME_LINES` of them).
     keep : ndarray of bool, shape (N_BLOCKS,)
         Usable blocks (others get no weight and stay out of the noise estimate).
     level : int
-        Pyramid level (lines averaged 2^level at a time).
-    decimated : ndarray, optional
-        The level's profiles (`_pyramid`), when already computed.
+        Pyramid level.
 
     Returns
     -------
-    (x, window) or None
+    (x, window)
         x of shape (len(CHANNELS), N_FREQ) float32; window an index into `COL_WINDOWS`
-        (the one whose coherent luma line is strongest); None when the level holds no frame.
+        (the one whose coherent luma line is strongest).
     """
     from scipy.fft import rfft
 
-    fr = _frames(logp, level, decimated)
-    if fr is None:
-        return None
+    fr = _frames(x_level)
     n_frames = fr.shape[2]
     spec = rfft(fr, n=NFFT, axis=-1, workers=1)  # (3, blocks, t, nf) complex64
     use = keep if keep.any() else np.ones(N_BLOCKS, bool)
@@ -308,10 +300,8 @@ def profiles_input(profiles: dict[int, np.ndarray], *, full_scale: float,
         logp = np.log(np.maximum(prof, np.float32(full_scale / 512.0))).astype(np.float32)
         k = np.ones(N_BLOCKS, bool) if keep is None else np.asarray(keep[axis], bool)
         n_lines[AXIS_NAMES[axis]] = int(prof.shape[-1])
-        for level, decimated in enumerate(_pyramid(logp)):
-            got = level_instances(logp, k, level, decimated)
-            if got is None:
-                break
+        for level, x_level in enumerate(_pyramid(logp)):
+            got = level_instances(x_level, k, level)
             xs.append(got[0])
             axes.append(AXIS_NAMES[axis])
             levels.append(level)
